@@ -267,14 +267,16 @@ class BoxPushing(MacroEnv[BoxPushingCore]):
         return jnp.stack([small, big, empty, wall, mate], -1).astype(jnp.float32)
 
     def _core_global_state(self, core: BoxPushingCore) -> chex.Array:
-        g = float(self.config.grid)
-        agent_xy = (core.pos.astype(jnp.float32) + 0.5) / g  # [2, 2]
+        # Multiply by 1/g rather than divide: XLA rewrites divisions by constants inside jit,
+        # which would make jitted and eager results differ in the last bit.
+        inv_g = np.float32(1.0 / self.config.grid)
+        agent_xy = (core.pos.astype(jnp.float32) + 0.5) * inv_g  # [2, 2]
         heading = jax.nn.one_hot(core.head, 4, dtype=jnp.float32)
         agents = jnp.concatenate([agent_xy, heading], -1).reshape(-1)  # [12]
         col = jnp.asarray(self.layout.box_col, jnp.float32)
         box_x = col + jnp.array([0.5, 0.5, 1.0], jnp.float32)  # BB: centre of its two cells
         box_y = core.box_row.astype(jnp.float32) + 0.5
-        boxes = (jnp.stack([box_x, box_y], -1) / g).reshape(-1)  # [6]
+        boxes = (jnp.stack([box_x, box_y], -1) * inv_g).reshape(-1)  # [6]
         return jnp.concatenate([agents, boxes])
 
     # --- rendering ---------------------------------------------------------------------
