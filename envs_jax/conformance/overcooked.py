@@ -1,0 +1,190 @@
+"""Trace adapter for Overcooked (format: ``shared/reference/overcooked/TRACES.md``).
+
+Two replays, each one compiled call:
+
+* one-step: every transition from its recorded pre-state (vmapped over all transitions);
+* rollout: every episode from reset, fed only ``t_mac_in`` (vmapped over episodes, scanned over
+  steps), which also checks that inputs of running agents are ignored.
+
+Every recorded field is compared: world state, grid, beliefs and belief maps, macro bookkeeping,
+observations (cached and fresh), global state, primitive actions, reward, done, truncation.
+"""
+
+from __future__ import annotations
+
+import json
+from typing import Mapping
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from envs_jax.conformance.common import FileReport, TraceAdapter, compare_fields, register_adapter
+from envs_jax.core import EnvState
+
+# Float fields: observations are k/7 and c/3 in float64 in the original, float32 here; the reward
+# is float32 here, whose spacing at 200 is 1.5e-5, so it gets a looser (still exact-in-float32) tolerance.
+ATOL = {"obs": 1e-6, "obs_real": 1e-6, "gstate": 1e-6, "reward": 1e-4}
+STATE_FIELDS = ("pos", "chop", "chopped", "hold", "plate_has", "knife_hold", "deliv_hold", "grid", "belief",
+                "pomap", "mac_cur", "mac_done", "chop_ctr", "obs", "gstate")
+
+
+def _detects(data: Mapping[str, np.ndarray]) -> bool:
+    return "s_pomap" in data and "s_knife_hold" in data and "meta_json" in data
+
+
+def _make_env(meta: dict):
+    from envs_jax.registry import make
+
+    return make(f"overcooked-{meta['map_type']}", horizon=int(meta["horizon"]))
+
+
+def trace_state(data: Mapping[str, np.ndarray], rows: np.ndarray, t: np.ndarray) -> EnvState:
+    """Batched ``EnvState`` of the recorded states ``rows`` (episode step ``t`` for truncation)."""
+    from envs_jax.overcooked.world import OvercookedState
+
+    i32 = lambda k: jnp.asarray(data[k][rows], jnp.int32)  # noqa: E731
+    n = len(rows)
+    core = OvercookedState(
+        pos=i32("s_pos"),
+        chop=i32("s_chop"),
+        hold=i32("s_hold"),
+        plate_has=jnp.asarray(data["s_plate_has"][rows], bool),
+        knife_hold=i32("s_knife_hold"),
+        deliv_hold=i32("s_deliv_hold"),
+        belief=i32("s_belief"),
+        chop_ctr=i32("s_chop_ctr"),
+        prim=jnp.full((n, 3), 4, jnp.int32),
+    )
+    return EnvState(
+        core=core,
+        obs_macro=jnp.asarray(data["s_obs"][rows], jnp.float32),
+        mac=i32("s_mac_cur"),
+        mac_done=jnp.asarray(data["s_mac_done"][rows], bool),
+        t_m=jnp.zeros((n, 3), jnp.int32),
+        t=jnp.asarray(t, jnp.int32),
+    )
+
+
+def _observed(env, state: EnvState, ts) -> dict[str, jax.Array]:
+    """Our values of the recorded state fields (one state, unbatched)."""
+    from envs_jax.overcooked import world
+
+    core = state.core
+    return {
+        "pos": core.pos,
+        "chop": core.chop,
+        "chopped": core.chop == 3,
+        "hold": core.hold,
+        "plate_has": core.plate_has,
+        "knife_hold": core.knife_hold,
+        "deliv_hold": core.deliv_hold,
+        "grid": world.true_grid(env.layout, core),
+        "belief": core.belief,
+        "pomap": env.belief_maps(state),
+        "mac_cur": state.mac,
+        "mac_done": state.mac_done,
+        "chop_ctr": core.chop_ctr,
+        "obs": ts.obs_macro,
+        "gstate": ts.state,
+    }
+
+
+def _transition(env, state: EnvState, ts) -> dict[str, jax.Array]:
+    out = _observed(env, state, ts)
+    out.update(
+        prim=state.core.prim,
+        reward=ts.reward,
+        done=ts.terminated,
+        truncated=ts.truncated,
+        # Fresh observations must equal the emitted ones wherever a macro-action just ended.
+        obs_real=jnp.where(state.mac_done[:, None], ts.obs_real, 0.0),
+    )
+    return out
+
+
+def _expected(data, meta, next_rows: np.ndarray, step: np.ndarray, ep: np.ndarray, trans: np.ndarray):
+    """Recorded values for transitions ``trans`` (flat) whose post-states are ``next_rows``."""
+    exp = {f: data[f"s_{f}"][next_rows] for f in STATE_FIELDS}
+    exp["chopped"] = exp["chopped"].astype(bool)
+    exp["plate_has"] = exp["plate_has"].astype(bool)
+    exp["mac_done"] = exp["mac_done"].astype(bool)
+    exp["prim"] = data["t_prim"][trans]
+    exp["reward"] = data["t_reward"][trans]
+    exp["done"] = data["t_done"][trans].astype(bool)
+    truncated_ep = np.array([bool(e["truncated"]) for e in meta["episodes"]])
+    exp["truncated"] = truncated_ep[ep] & (step + 1 == data["ep_len"][ep])
+    exp["obs_real"] = np.where(exp["mac_done"][..., None], exp["obs"], 0.0)
+    return exp
+
+
+def _to_episodes(flat: dict, ep: np.ndarray, step: np.ndarray, n_ep: int, max_len: int) -> dict:
+    out = {}
+    for k, v in flat.items():
+        v = np.asarray(v)
+        pad = np.zeros((n_ep, max_len, *v.shape[1:]), v.dtype)
+        pad[ep, step] = v
+        out[k] = pad
+    return out
+
+
+def check(path: str, data: Mapping[str, np.ndarray]) -> FileReport:
+    meta = json.loads(str(data["meta_json"]))
+    env = _make_env(meta)
+    ep_len = data["ep_len"].astype(np.int64)
+    n_ep, max_len = len(ep_len), int(ep_len.max())
+    ep = np.repeat(np.arange(n_ep), ep_len)
+    step = np.concatenate([np.arange(n) for n in ep_len])
+    trans = data["ep_step_start"][ep] + step
+    rows = data["ep_state_start"][ep] + step
+    valid = np.arange(max_len)[None, :] < ep_len[:, None]
+    expected = _to_episodes(_expected(data, meta, rows + 1, step, ep, trans), ep, step, n_ep, max_len)
+    actions = jnp.asarray(data["t_mac_in"][trans], jnp.int32)
+    key = jax.random.key(0)
+
+    # One-step replay from every recorded pre-state.
+    @jax.jit
+    def one_step(states, acts):
+        def f(s, a):
+            nxt, ts = env.step(key, s, a)
+            return _transition(env, nxt, ts)
+
+        return jax.vmap(f)(states, acts)
+
+    got = _to_episodes(jax.device_get(one_step(trace_state(data, rows, step), actions)), ep, step, n_ep, max_len)
+    ok_one, first = compare_fields(expected, got, valid, ATOL, mode="one-step")
+
+    # Rollout of every episode from reset, fed only the recorded joint inputs.
+    ep_actions = np.zeros((n_ep, max_len, 3), np.int32)
+    ep_actions[ep, step] = data["t_mac_in"][trans]
+
+    @jax.jit
+    def rollout(acts):
+        def episode(acts_e):
+            s0, ts0 = env.reset(key)
+
+            def body(s, a):
+                nxt, ts = env.step(key, s, a)
+                return nxt, _transition(env, nxt, ts)
+
+            return _observed(env, s0, ts0), jax.lax.scan(body, s0, acts_e)[1]
+
+        return jax.vmap(episode)(acts)
+
+    got_reset, got_roll = jax.device_get(rollout(jnp.asarray(ep_actions)))
+    ok_roll, first_roll = compare_fields(expected, got_roll, valid, ATOL, mode="rollout")
+    # The reset state (state 0 of every episode) must match too; a mismatch there counts against step 0.
+    reset_rows = data["ep_state_start"]
+    exp_reset = _expected(data, meta, reset_rows, np.full(n_ep, -5), np.arange(n_ep), data["ep_step_start"])
+    exp_reset = {k: v[:, None] for k, v in exp_reset.items() if k in STATE_FIELDS}
+    got_reset = {k: np.asarray(got_reset[k])[:, None] for k in exp_reset}
+    ok_reset, first_reset = compare_fields(exp_reset, got_reset, np.ones((n_ep, 1), bool), ATOL, mode="reset")
+    ok_roll[:, 0] &= ok_reset[:, 0]
+
+    firsts = [m for m in (first, first_reset, first_roll) if m is not None]
+    first = min(firsts, key=lambda m: (m.episode, m.step)) if firsts else None
+    matched = int(np.sum(ok_one & ok_roll & valid))
+    return FileReport(path, "overcooked", n_ep, int(valid.sum()), matched, first)
+
+
+register_adapter(TraceAdapter("overcooked", _detects, check))

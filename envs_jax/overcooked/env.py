@@ -1,0 +1,113 @@
+"""Macro-action Overcooked (maps A/B/C, 3 agents, task 6) as a ``MacroEnv`` (SPEC §4).
+
+One ``step`` is one primitive time step:
+
+1. adopt: free agents start the macro-action they sent (done by ``MacroEnv``);
+2. controllers turn running macro-actions into primitive actions (pre-physics state, belief maps
+   from the previous step);
+3. physics;
+4. belief update from the post-physics positions;
+5. post-step termination checks;
+6. observations (``obs_macro`` refreshed only for agents whose macro-action ended, by ``MacroEnv``).
+
+The environment has no randomness: ``key`` arguments are accepted and ignored.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import chex
+import jax
+import jax.numpy as jnp
+
+from envs_jax.core import CoreStep, EnvSpec, EnvState, MacroEnv
+from envs_jax.overcooked import controllers, layouts, physics, planner, world
+from envs_jax.overcooked.world import OvercookedState
+
+
+@dataclasses.dataclass(frozen=True)
+class OvercookedConfig:
+    """Overridable settings (``envs_jax.make("overcooked-A", horizon=300, reward_wrong=-10.0)``).
+
+    Defaults are the MacroMARL experiment settings (SPEC header, DECISIONS.md D14)."""
+
+    horizon: int = 200  # primitive steps before truncation (the training loop's env_terminate_step)
+    discount: float = 0.99
+    reward_step: float = -0.1  # every primitive step, once for the team
+    reward_chop: float = 10.0  # a food reaches 3 chops
+    reward_correct: float = 200.0  # lettuce-onion-tomato salad delivered (terminates)
+    reward_wrong: float = -5.0  # anything else brought to the delivery counter
+    obs_radius: int = 2  # Chebyshev view radius (5×5 view); also drives the beliefs
+
+    def __post_init__(self):
+        if self.horizon < 1:
+            raise ValueError(f"overcooked: horizon={self.horizon!r} must be >= 1")
+        if not 0.0 < self.discount <= 1.0:
+            raise ValueError(f"overcooked: discount={self.discount!r} must be in (0, 1]")
+        if not 1 <= self.obs_radius <= layouts.N - 1:
+            raise ValueError(f"overcooked: obs_radius={self.obs_radius!r} must be in [1, {layouts.N - 1}]")
+
+
+class Overcooked(MacroEnv[OvercookedState]):
+    """Macro-action Overcooked on one map; build it with ``envs_jax.make("overcooked-A")``."""
+
+    def __init__(self, map_name: str, config: OvercookedConfig = OvercookedConfig()):
+        name = f"overcooked-{map_name}"
+        self.layout = layouts.build_layout(map_name)
+        self.config = config
+        n = layouts.N_AGENTS
+        self.spec = EnvSpec(
+            name=name,
+            num_agents=n,
+            num_actions=(self.layout.num_actions,) * n,
+            action_names=(self.layout.action_names,) * n,
+            obs_sizes=(world.OBS_DIM,) * n,
+            state_dim=world.OBS_DIM,
+            horizon=config.horizon,
+            discount=config.discount,
+            agent_names=tuple(f"agent{i + 1}" for i in range(n)),
+        )
+        self._plan = jax.vmap(planner.plan_exact)
+
+    # --- MacroEnv hooks -----------------------------------------------------------------------
+    def _core_reset(self, key: chex.PRNGKey) -> OvercookedState:
+        del key  # deterministic
+        return world.initial_state()
+
+    def _core_step(self, key, core: OvercookedState, actions, free, mac) -> CoreStep:
+        del key, free, mac  # deterministic; ``actions`` already are the running macro-actions
+        radius = self.config.obs_radius
+        pm = world.belief_maps(self.layout, core)
+        prim, done, chop_ctr = controllers.controllers(self.layout, core, pm, actions, self._plan, radius)
+        nxt, ev = physics.physics(self.layout, core.replace(chop_ctr=chop_ctr), prim)
+        nxt = nxt.replace(belief=world.update_beliefs(nxt, radius))
+        done = done | controllers.post_step_done(self.layout, nxt, actions)
+        cfg = self.config
+        reward = (
+            jnp.float32(cfg.reward_step)
+            + ev.chops.astype(jnp.float32) * cfg.reward_chop
+            + ev.wrong.astype(jnp.float32) * cfg.reward_wrong
+            + ev.correct.astype(jnp.float32) * cfg.reward_correct
+        )
+        return CoreStep(core=nxt, mac=actions, mac_done=done, reward=reward, terminated=ev.correct > 0)
+
+    def _core_obs(self, core: OvercookedState) -> chex.Array:
+        return world.observations(core, self.config.obs_radius)
+
+    def _core_global_state(self, core: OvercookedState) -> chex.Array:
+        return world.global_state(core)
+
+    # --- extras ---------------------------------------------------------------------------------
+    def true_grid(self, state: EnvState) -> chex.Array:
+        """int32[7, 7] cell codes of the true map (SPEC §3.1)."""
+        return world.true_grid(self.layout, state.core)
+
+    def belief_maps(self, state: EnvState) -> chex.Array:
+        """int32[3, 7, 7] each agent's belief map (SPEC §6)."""
+        return world.belief_maps(self.layout, state.core).reshape(-1, layouts.N, layouts.N)
+
+    def render(self, state: EnvState) -> str:
+        from envs_jax.overcooked.render import render
+
+        return render(self, state)
