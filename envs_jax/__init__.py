@@ -15,6 +15,7 @@ from envs_jax.wrappers import AutoReset, AutoResetState
 # Importing a domain registers its names with ``make``.
 from envs_jax import boxpushing as _boxpushing  # noqa: E402,F401
 from envs_jax import overcooked as _overcooked  # noqa: E402,F401
+from envs_jax import warehouse as _warehouse  # noqa: E402,F401
 
 __all__ = [
     "AutoReset",

@@ -11,6 +11,7 @@ import numpy as np
 
 from envs_jax.conformance import boxpushing as _boxpushing  # noqa: F401  (registers its adapter)
 from envs_jax.conformance import overcooked as _overcooked  # noqa: F401
+from envs_jax.conformance import warehouse as _warehouse  # noqa: F401
 from envs_jax.conformance.common import ADAPTERS, FileReport, Mismatch, TraceAdapter, register_adapter
 
 __all__ = ["check_file", "FileReport", "Mismatch", "TraceAdapter", "register_adapter", "ADAPTERS"]

@@ -1,0 +1,280 @@
+"""Warehouse trace adapter (format: ``shared/reference/warehouse/TRACES.md``).
+
+Rows of all episodes are concatenated; row 0 of an episode is its reset, row t >= 1 the
+result of step t. Two checks per file, each one compiled, vectorised call:
+
+* one-step: every transition is replayed from its recorded pre-state (row t-1, internal
+  state rebuilt exactly, see :func:`state_from_rows`) with ``action_in[t]`` — a single
+  ``vmap`` over all transitions of the file — and compared with row t;
+* rollout: every episode is replayed from our ``reset`` (compared with its reset row)
+  with the recorded actions, busy agents' entries replaced by junk (-1) to prove they are
+  ignored (``vmap`` over episodes of a ``lax.scan`` over steps).
+
+Every recorded field is compared: step I/O (obs, cur_mac, mac_done, reward, done/
+truncated, state) and every internal field we keep (positions, waypoints, timers, baskets,
+F's action/timer/failed flag/staging/search counts, humans, step counter), plus our
+macro-action progress ``t_m`` against the one implied by the recorded ``mac_done``.
+Paper-config files (no noise) are compared bit-exactly, positions and robot timers
+reconstructed in float64 from our integer state; only the float32 global state vector
+gets a tolerance. ``_noise`` files run the continuous-motion path with the recorded draws
+injected (:class:`~envs_jax.warehouse.InjectedNoiseEnv`); their positions get ``atol``.
+
+Our ``terminated`` is the env's ``done`` (the task is done, or E's horizon: SPEC §12.9);
+our ``truncated`` is the horizon cut without it (the trace's ``truncated & ~done``).
+"""
+
+from __future__ import annotations
+
+import json
+from typing import Mapping
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from envs_jax.conformance.common import FileReport, Mismatch, TraceAdapter, compare_fields, register_adapter
+from envs_jax.core import EnvState
+from envs_jax.warehouse import InjectedNoiseEnv, Noise, WarehouseCore, WarehouseEnv, make_warehouse
+from envs_jax.warehouse import variants as V
+
+ATOL = {"state": 1e-5}
+ATOL_NOISE = {"state": 1e-5, "rb_xy": 1e-5}
+
+
+def _detects(d: Mapping[str, np.ndarray]) -> bool:
+    return {"rb_xy", "f_staging", "h_step", "meta_json"} <= set(d)
+
+
+def env_for_trace(meta: dict) -> WarehouseEnv:
+    """Our env for a trace's constructor kwargs (``ValueError`` for settings we do not model)."""
+    kw = meta["env_kwargs"]
+    fixed = {"TB_move_speed": V.SPEED_CENTS / 100, "fetch_pass_obj_tc": V.PASS_DURATION,
+             "fetch_look_for_obj_tc": V.SEARCH_DURATION, "TB_move_cost": 0.0, "obs_human_wait": False}
+    for key, value in fixed.items():
+        if kw.get(key, value) != value:
+            raise ValueError(f"trace uses {key}={kw[key]!r}; only {value!r} is modelled")
+    noisy = bool(kw["TB_move_noisy"]) or bool(kw["fetch_manip_noisy"])
+    cls_env = make_warehouse(
+        meta["variant"],
+        horizon=int(meta["horizon"]),
+        human_durations=tuple(tuple(int(x) for x in row) for row in kw["human_speed_per_step"]),
+        n_each_obj=int(meta["n_each_obj"]),
+        delay_penalty=float(kw["delay_delivery_penalty"]),
+        move_noise_std=float(kw["TB_move_noisy"]),
+        fetch_duration_noise=bool(kw["fetch_manip_noisy"]),
+    )
+    if int(kw.get("terminate_step", meta["horizon"])) != int(meta["horizon"]) and cls_env.config.done_at_horizon:
+        raise ValueError("trace's terminate_step differs from its horizon; not modelled")
+    if noisy:
+        return InjectedNoiseEnv(cls_env.layout, cls_env.config, cls_env.spec.name)
+    return cls_env
+
+
+def _expected_t_m(d: Mapping[str, np.ndarray]) -> np.ndarray:
+    """Macro-action progress implied by the recorded ``mac_done`` (0 when free to choose)."""
+    t_m = np.zeros(d["mac_done"].shape, np.int32)
+    for r in range(1, len(t_m)):
+        if d["t"][r] > 0:
+            t_m[r] = np.where(d["mac_done"][r - 1], 0, t_m[r - 1] + 1)
+    return t_m
+
+
+def _points(env: WarehouseEnv, xy: np.ndarray) -> np.ndarray:
+    """Motion-graph point ids of float64 positions ``[R, nT, 2]`` (-1 if not on the graph)."""
+    g = env.graph
+    out = np.full(xy.shape[:2], -1, np.int32)
+    for i in range(env.n_robots):
+        lookup = {g.xy64[i, p].tobytes(): p for p in range(g.n_points[i])}
+        out[:, i] = [lookup.get(np.ascontiguousarray(x).tobytes(), -1) for x in xy[:, i]]
+    return out
+
+
+def _tau_cents(tleft: np.ndarray) -> np.ndarray:
+    """Robot timers in 1/100 (positive ones are ``round2(d) - 0.8``)."""
+    return np.rint(tleft * 100).astype(np.int32)
+
+
+def _tau_float64(tau: np.ndarray) -> np.ndarray:
+    """Inverse of :func:`_tau_cents`, bit-exact w.r.t. the reference's ``dist - speed``."""
+    tau = np.asarray(tau).astype(np.int64)
+    travelling = (tau + V.SPEED_CENTS).astype(np.float64) / 100.0 - V.SPEED_CENTS / 100
+    return np.where(tau > 0, travelling, tau / 100.0)
+
+
+def state_from_rows(
+    env: WarehouseEnv, d: Mapping[str, np.ndarray], rows: np.ndarray, t_m: np.ndarray
+) -> tuple[EnvState, np.ndarray]:
+    """Batched EnvState rebuilt from recorded rows (their full internal state), and the
+    motion-graph points of the recorded positions (-1 off the graph; exact mode only)."""
+    take = lambda k: np.asarray(d[k])[rows]  # noqa: E731
+    n_t = env.n_robots
+    xy = take("rb_xy")
+    pt = _points(env, xy) if env.exact_motion else np.zeros(xy.shape[:2], np.int32)
+    core = WarehouseCore(
+        rb_xy=jnp.asarray(xy, jnp.float32),
+        rb_pt=jnp.asarray(np.maximum(pt, 0)),
+        rb_wp=jnp.asarray(take("rb_wp"), jnp.int32),
+        rb_tau=jnp.asarray(_tau_cents(take("rb_tleft"))),
+        basket=jnp.asarray(take("rb_basket"), jnp.int32),
+        f_act=jnp.asarray(take("f_act"), jnp.int32),
+        f_tau=jnp.asarray(np.rint(take("f_tleft")), jnp.int32),
+        f_failed=jnp.asarray(take("f_failed")),
+        staging=jnp.asarray(take("f_staging"), jnp.int32),
+        found=jnp.asarray(take("f_found_count"), jnp.int32),
+        h_phase=jnp.asarray(take("h_step"), jnp.int32),
+        h_time=jnp.asarray(np.rint(take("h_tleft")), jnp.int32),
+        h_got=jnp.asarray(take("h_obtained")),
+        h_fin=jnp.asarray(take("h_finished")),
+        served=jnp.asarray(take("h_served")),
+        count_step=jnp.asarray(take("count_step"), jnp.int32),
+    )
+    mac = np.concatenate([take("rb_act"), take("f_act")[:, None]], axis=1)
+    done = np.concatenate([take("rb_done"), take("f_done")[:, None]], axis=1)
+    return EnvState(
+        core=core,
+        obs_macro=jnp.asarray(take("obs"), jnp.float32),
+        mac=jnp.asarray(mac, jnp.int32),
+        mac_done=jnp.asarray(done),
+        t_m=jnp.asarray(t_m[rows]),
+        t=jnp.asarray(take("count_step"), jnp.int32),
+    ), pt
+
+
+def noise_from_rows(d: Mapping[str, np.ndarray], rows: np.ndarray) -> Noise:
+    move = np.where(d["noise_move_drawn"][rows][..., None], d["noise_move"][rows], 0.0)
+    fetch = np.where(d["noise_fetch_drawn"][rows], d["noise_fetch"][rows], 0)
+    return Noise(move=jnp.asarray(move, jnp.float32), fetch=jnp.asarray(fetch, jnp.int32))
+
+
+def view(env: WarehouseEnv, state: EnvState, ts) -> dict[str, jax.Array]:
+    """Our (batched) state/timestep under the trace's field names (still integer-coded)."""
+    c, n_t = state.core, env.n_robots
+    return {
+        "obs": ts.obs_macro, "cur_mac": ts.mac, "mac_done": ts.mac_done, "reward": ts.reward,
+        "done": ts.terminated, "truncated": ts.truncated, "state": ts.state, "t_m": ts.t_m,
+        "rb_xy": c.rb_xy, "rb_pt": c.rb_pt, "rb_wp": c.rb_wp, "rb_act": state.mac[..., :n_t],
+        "rb_tau": c.rb_tau, "rb_done": state.mac_done[..., :n_t], "rb_basket": c.basket,
+        "f_act": c.f_act, "f_tau": c.f_tau, "f_done": state.mac_done[..., n_t], "f_failed": c.f_failed,
+        "f_staging": c.staging, "f_found_count": c.found, "h_step": c.h_phase, "h_tleft": c.h_time,
+        "h_obtained": c.h_got, "h_finished": c.h_fin, "h_served": c.served, "count_step": c.count_step,
+    }
+
+
+def to_trace_units(env: WarehouseEnv, got: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """Convert integer-coded fields to the reference's float64 values (exactly)."""
+    got = dict(got)
+    if env.exact_motion:
+        pt = got["rb_pt"]
+        got["rb_xy"] = env.graph.xy64[np.arange(env.n_robots), pt]
+    got.pop("rb_pt")
+    got["rb_tleft"] = _tau_float64(got.pop("rb_tau"))
+    got["f_tleft"] = got.pop("f_tau").astype(np.float64)
+    got["h_tleft"] = got["h_tleft"].astype(np.float64)
+    return got
+
+
+def expected_rows(d: Mapping[str, np.ndarray], rows: np.ndarray, t_m: np.ndarray) -> dict[str, np.ndarray]:
+    out = {k: np.asarray(d[k])[rows] for k in (
+        "obs", "cur_mac", "mac_done", "reward", "done", "state", "rb_xy", "rb_wp", "rb_act", "rb_tleft",
+        "rb_done", "rb_basket", "f_act", "f_tleft", "f_done", "f_failed", "f_staging", "f_found_count",
+        "h_step", "h_tleft", "h_obtained", "h_finished", "h_served", "count_step")}
+    out["truncated"] = d["truncated"][rows] & ~d["done"][rows]
+    out["t_m"] = t_m[rows]
+    return out
+
+
+def _as_el(x: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    return np.asarray(x).reshape(*shape, *np.shape(x)[1:])
+
+
+def _episode_rows(d):
+    offsets = np.asarray(d["ep_offsets"])
+    lengths = np.diff(offsets) - 1  # transitions per episode
+    E, L = len(lengths), int(lengths.max())
+    valid = np.arange(L)[None, :] < lengths[:, None]
+    rows = np.where(valid, offsets[:-1, None] + 1 + np.arange(L)[None, :], offsets[:-1, None])
+    return offsets, valid, rows
+
+
+def _one_step(env: WarehouseEnv, d, t_m, atol):
+    offsets, valid, rows = _episode_rows(d)
+    E, L = valid.shape
+    post_rows = rows.ravel()
+    pre, pt = state_from_rows(env, d, post_rows - 1, t_m)
+    actions = jnp.asarray(d["action_in"][post_rows], jnp.int32)
+    keys = noise_from_rows(d, post_rows) if isinstance(env, InjectedNoiseEnv) else jax.random.split(
+        jax.random.key(0), len(post_rows))
+    post, ts = jax.jit(jax.vmap(env.step))(keys, pre, actions)
+    got = to_trace_units(env, {k: np.asarray(v) for k, v in view(env, post, ts).items()})
+    exp = expected_rows(d, post_rows, t_m)
+    exp, got = ({k: _as_el(v, (E, L)) for k, v in x.items()} for x in (exp, got))
+    ok, first = compare_fields(exp, got, valid, atol, mode="one-step")
+    if env.exact_motion:  # a pre-state off the motion graph cannot be replayed exactly
+        off = _as_el((pt < 0).any(-1), (E, L)) & valid
+        ok &= ~off
+        for e, t in np.argwhere(off)[:1]:
+            cand = Mismatch(int(e), int(t) + 1, "rb_xy (pre-state not on the motion graph)", "on graph", "off", "one-step")
+            first = cand if first is None or (cand.episode, cand.step) < (first.episode, first.step) else first
+    return ok, first
+
+
+def _rollout(env: WarehouseEnv, d, t_m, atol):
+    offsets, valid, rows = _episode_rows(d)
+    E, L = valid.shape
+    reset_state, reset_ts = env.reset(jax.random.key(0))
+    # Reset rows must equal our reset.
+    reset_got = to_trace_units(env, {k: np.broadcast_to(np.asarray(v), (E,) + np.shape(v))[:, None]
+                                     for k, v in view(env, reset_state, reset_ts).items()})
+    reset_exp = {k: v[:, None] for k, v in expected_rows(d, offsets[:-1], t_m).items()}
+    reset_exp["reward"] = np.zeros_like(reset_exp["reward"])  # reset rows carry no step result
+    reset_exp["cur_mac"] = np.full_like(reset_exp["cur_mac"], -1)
+    reset_ok, reset_first = compare_fields(reset_exp, reset_got, np.ones((E, 1), bool), atol, mode="reset")
+
+    actions = jnp.asarray(d["action_in"][rows], jnp.int32)  # [E, L, n]
+    injected = isinstance(env, InjectedNoiseEnv)
+    noise = noise_from_rows(d, rows.ravel())
+    noise = jax.tree_util.tree_map(lambda x: x.reshape(E, L, *x.shape[1:]), noise)
+
+    def episode(acts, noise_e):
+        def body(state, inp):
+            a, nz, t = inp
+            junk = jnp.where(state.mac_done, a, -1)  # busy agents' entries must be ignored
+            key = nz if injected else jax.random.fold_in(jax.random.key(0), t)
+            state, ts = env.step(key, state, junk)
+            return state, view(env, state, ts)
+
+        _, outs = jax.lax.scan(body, reset_state, (acts, noise_e, jnp.arange(L)))
+        return outs
+
+    outs = jax.jit(jax.vmap(episode))(actions, noise)
+    got = to_trace_units(env, {k: np.asarray(v) for k, v in outs.items()})
+    exp = {k: _as_el(v, (E, L)) for k, v in expected_rows(d, rows.ravel(), t_m).items()}
+    ok, first = compare_fields(exp, got, valid, atol, mode="rollout")
+    for e in np.flatnonzero(~reset_ok[:, 0]):
+        ok[e] = False
+        if first is None or first.episode > e:
+            first = reset_first
+    return ok, first
+
+
+def check(path: str, d: Mapping[str, np.ndarray]) -> FileReport:
+    meta = json.loads(str(d["meta_json"]))
+    env = env_for_trace(meta)
+    atol = ATOL if env.exact_motion else ATOL_NOISE
+    t_m = _expected_t_m(d)
+    ok_step, first_step = _one_step(env, d, t_m, atol)
+    ok_roll, first_roll = _rollout(env, d, t_m, atol)
+    _, valid, _ = _episode_rows(d)
+    firsts = [m for m in (first_step, first_roll) if m is not None]
+    first = min(firsts, key=lambda m: (m.episode, m.step)) if firsts else None
+    return FileReport(
+        path=path,
+        format="warehouse",
+        episodes=int(valid.shape[0]),
+        transitions=int(valid.sum()),
+        matched=int((ok_step & ok_roll & valid).sum()),
+        first_mismatch=first,
+    )
+
+
+register_adapter(TraceAdapter("warehouse", _detects, check))
