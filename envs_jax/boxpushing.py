@@ -143,8 +143,9 @@ class BoxPushing(MacroEnv[BoxPushingCore]):
         return edge[head]
 
     # --- controllers (one primitive step of one agent, SPEC §6) ---------------------------
-    def _goto(self, k: int, ag: _Agent, box_row: chex.Array) -> tuple[_Agent, chex.Array]:
-        w = jnp.asarray(self.layout.waypoints[k])
+    def _goto(self, k: chex.Array, ag: _Agent, box_row: chex.Array) -> tuple[_Agent, chex.Array]:
+        """GT_k for a (possibly traced) waypoint index ``k`` in 0..3."""
+        w = jnp.asarray(self.layout.waypoints)[k]
         col = self.layout.box_col
         blocked_cols = jnp.array([col[SB0], col[SB1], col[BB], col[BB] + 1], jnp.int32)
         at_target = jnp.all(ag.pos == w)
@@ -166,7 +167,7 @@ class BoxPushing(MacroEnv[BoxPushingCore]):
         head = jnp.where(at_target, NORTH, head)
         done = at_target | arrived
         out = ag.replace(
-            pos=pos, head=head.astype(jnp.int32), wp=jnp.where(done, k, ag.wp), free=done
+            pos=pos, head=head.astype(jnp.int32), wp=jnp.where(done, k, ag.wp).astype(jnp.int32), free=done
         )
         return out, box_row
 
@@ -199,9 +200,11 @@ class BoxPushing(MacroEnv[BoxPushingCore]):
         return turn
 
     def _controller(self, action, ag: _Agent, box_row):
-        branches = [lambda a, b, k=k: self._goto(k, a, b) for k in range(4)]
+        # The four GT_k share one branch with a dynamic waypoint: under vmap every branch
+        # is evaluated, so this keeps the step cheap.
+        branches = [lambda a, b: self._goto(jnp.clip(action, 0, 3), a, b)]
         branches += [self._push, self._turn(-1), self._turn(1), self._turn(0)]
-        return jax.lax.switch(action, branches, ag, box_row)
+        return jax.lax.switch(jnp.maximum(action - 3, 0), branches, ag, box_row)
 
     # --- MacroEnv hooks ----------------------------------------------------------------
     def _core_reset(self, key: chex.PRNGKey) -> BoxPushingCore:
@@ -239,7 +242,8 @@ class BoxPushing(MacroEnv[BoxPushingCore]):
             mac_i = jnp.where(lock[i], PUSH, actions[i])
             return box_row, (new, mac_i)
 
-        box_row, (agents, mac_new) = jax.lax.scan(agent_step, core.box_row, jnp.arange(2))
+        # Sequential by nature (Q18); unrolled so XLA fuses both agents' updates.
+        box_row, (agents, mac_new) = jax.lax.scan(agent_step, core.box_row, jnp.arange(2), unroll=True)
 
         # C. the big box advances while anyone is locked; arrival frees the locked agents.
         any_lock = jnp.any(lock)
