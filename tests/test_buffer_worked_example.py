@@ -142,13 +142,13 @@ def test_truncation_bootstraps_everywhere():
 
 
 def test_jit_and_vmap_equal_plain(slot):
-    """Each view under jit, and on a stacked batch (auto-vmapped), equals the plain call."""
+    """Each view under jit, and jitted on a stacked batch (auto-vmapped), equals the plain call."""
     other = build(end="truncated")
     batch = jax.tree_util.tree_map(lambda a, b: np.stack([a, b]), slot, other)
     for view in (views.micro_view, views.macro_view, views.jert_view, views.cert_view):
         plain = [view(slot), view(other)]
         jitted = jax.jit(view)(slot)
-        batched = view(batch)
+        batched = jax.jit(view)(batch)
         for leaf_p, leaf_j in zip(jax.tree_util.tree_leaves(plain[0]), jax.tree_util.tree_leaves(jitted)):
             np.testing.assert_array_equal(leaf_p, leaf_j)
         for b in range(2):
