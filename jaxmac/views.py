@@ -45,7 +45,7 @@ def _auto_batch(view):
     def wrapper(slot: EpisodeSlot, *args, **kwargs):
         if not isinstance(slot, EpisodeSlot):
             raise ValueError(f"{view.__name__}: expected an EpisodeSlot, got {type(slot).__name__}")
-        fn = lambda s: view(s, *args, **kwargs)  # noqa: E731
+        fn = lambda s: view(s, *args, **kwargs)
         for _ in range(slot.reward.ndim - 1):
             fn = jax.vmap(fn)
         return fn(slot)
@@ -105,7 +105,7 @@ def micro_view(slot: EpisodeSlot, n_step: int = 1) -> MicroView:
     boot_row = t + m
     discount = jnp.where(slot.terminated[last], 0.0, seg.discount_powers(cfg.discount, m))
     free, pinned, t_m_next = _pinned_next(slot, last)
-    z = lambda x: jnp.where(mask.reshape((-1,) + (1,) * (x.ndim - 1)), x, jnp.zeros((), x.dtype))  # noqa: E731
+    z = lambda x: jnp.where(mask.reshape((-1,) + (1,) * (x.ndim - 1)), x, jnp.zeros((), x.dtype))
     return MicroView(
         mask=mask, mac=slot.mac, t_m=slot.t_m, reward=slot.reward, free_next=slot.mac_done,
         ret=z(ret), n_steps=z(m), boot_row=z(boot_row), boot_discount=z(discount),
@@ -147,7 +147,7 @@ def macro_view(slot: EpisodeSlot) -> MacroView:
     terminal = slot.terminated[s.end]
     discount = jnp.where(terminal, 0.0, seg.discount_powers(cfg.discount, s.duration))
     free, pinned, t_m_next = _pinned_next(slot, s.end)
-    z = lambda x: jnp.where(mask.reshape(mask.shape + (1,) * (x.ndim - 2)), x, jnp.zeros((), x.dtype))  # noqa: E731
+    z = lambda x: jnp.where(mask.reshape(mask.shape + (1,) * (x.ndim - 2)), x, jnp.zeros((), x.dtype))
     agent = jnp.broadcast_to(jnp.arange(cfg.num_agents, dtype=jnp.int32)[:, None], mask.shape)
     return MacroView(
         mask=mask, agent=agent, mac=s.mac, start=s.start, end=s.end, duration=s.duration,
@@ -200,7 +200,7 @@ def jert_view(slot: EpisodeSlot) -> JertView:
     free, pinned, t_m_next = _pinned_next(slot, step)
     obs = slot.decode_obs("macro")
     state = slot.decode_state()
-    z = lambda x: jnp.where(mask.reshape((-1,) + (1,) * (x.ndim - 1)), x, jnp.zeros((), x.dtype))  # noqa: E731
+    z = lambda x: jnp.where(mask.reshape((-1,) + (1,) * (x.ndim - 1)), x, jnp.zeros((), x.dtype))
     return JertView(
         mask=mask, step=z(step), start=z(start), tau=z(tau), reward=z(acc[step]),
         discount=z(jnp.where(terminal, 0.0, seg.discount_powers(cfg.discount, tau))), terminal=z(terminal),
@@ -246,7 +246,7 @@ def cert_view(slot: EpisodeSlot) -> CertView:
         tau = t_m_i[step] + 1
         start = step - tau + 1
         terminal = slot.terminated[step]
-        z = lambda x: jnp.where(mask.reshape((-1,) + (1,) * (x.ndim - 1)), x, jnp.zeros((), x.dtype))  # noqa: E731
+        z = lambda x: jnp.where(mask.reshape((-1,) + (1,) * (x.ndim - 1)), x, jnp.zeros((), x.dtype))
         return CertView(
             mask=mask, step=z(step), start=z(start), tau=z(tau), reward=z(acc_i[step]),
             discount=z(jnp.where(terminal, 0.0, seg.discount_powers(cfg.discount, tau))),

@@ -6,9 +6,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from _buffer_fixtures import config_for, synthetic_rollout
 
 import envs_jax
-from _buffer_fixtures import config_for, synthetic_rollout
 from jaxmac import episode, rollout, views
 from jaxmac.episode import ObsCodec, SlotConfig
 
@@ -25,7 +25,7 @@ def bp():
     # two seeds: vmapped writing must equal writing each episode alone
     keys = jax.random.split(jax.random.key(3), 2)
     reset_ts, traj, slots = jax.jit(jax.vmap(collect))(keys)
-    first = lambda tree: jax.tree_util.tree_map(lambda x: x[0], tree)  # noqa: E731
+    first = lambda tree: jax.tree_util.tree_map(lambda x: x[0], tree)
     single = jax.jit(functools.partial(episode.write_episode, config))(first(reset_ts), first(traj))
     return env, config, reset_ts, traj, slots, single
 
@@ -34,9 +34,7 @@ def test_boxpushing_slot_round_trips(bp):
     env, config, reset_ts, traj, slots, _ = bp
     assert config.obs == ObsCodec("uint8") and config.horizon == env.spec.horizon == 100
     for e in range(2):
-        slot = jax.tree_util.tree_map(lambda x: x[e], slots)
-        ts0 = jax.tree_util.tree_map(lambda x: np.asarray(x[e]), reset_ts)
-        tr = jax.tree_util.tree_map(lambda x: np.asarray(x[e]), traj)
+        slot, ts0, tr = jax.tree_util.tree_map(lambda x, e=e: np.asarray(x[e]), (slots, reset_ts, traj))
         done = tr.terminated | tr.truncated
         L = int(np.argmax(done)) + 1 if done.any() else config.horizon
         assert int(slot.length) == L
@@ -46,7 +44,7 @@ def test_boxpushing_slot_round_trips(bp):
         np.testing.assert_array_equal(slot.mac_done[:L], tr.mac_done[:L])
         for name, field in (("real", "obs_real"), ("macro", "obs_macro")):
             want = np.concatenate([getattr(ts0, field)[None], getattr(tr, field)[:L]])
-            assert config.obs.is_exact(want)  # binary features: uint8 storage is lossless
+            assert config.obs.roundtrip_error(want) == 0.0  # binary features: uint8 is lossless
             np.testing.assert_array_equal(slot.decode_obs(name)[: L + 1], want)
         np.testing.assert_array_equal(slot.decode_state()[: L + 1], np.concatenate([ts0.state[None], tr.state[:L]]))
         np.testing.assert_array_equal(slot.avail[: L + 1], np.concatenate([ts0.avail_actions[None], tr.avail_actions[:L]]))
@@ -68,7 +66,7 @@ def test_boxpushing_vmapped_write_equals_single(bp):
 
 def test_boxpushing_views_run_on_a_sampled_batch(bp):
     """Views accept the [B, ...] batch a ring sample returns; masks count what they should."""
-    _, _, _, traj, slots, _ = bp
+    slots = bp[4]
     jv = jax.jit(views.jert_view)(slots)
     mv = jax.jit(views.macro_view)(slots)
     assert jv.mask.shape == (2, 100) and mv.mask.shape == (2, 2, 100)
@@ -79,10 +77,12 @@ def test_boxpushing_views_run_on_a_sampled_batch(bp):
 
 def test_overcooked_fractions_round_trip_in_scaled_uint8():
     codec = ObsCodec("uint8", 21.0)  # the Overcooked default
-    values = np.concatenate([np.arange(8) / np.float32(7), np.arange(4) / np.float32(3)]).astype(np.float32)
-    assert codec.is_exact(values)
-    assert not ObsCodec("uint8").is_exact(values)  # unscaled uint8 would lose them
-    np.testing.assert_array_equal(codec.encode(jnp.asarray(values)), np.r_[np.arange(8) * 3, np.arange(4) * 7])
+    k7, c3 = np.arange(8, dtype=np.float32), np.arange(4, dtype=np.float32)
+    exact = np.concatenate([k7 / 7, c3 / 3]).astype(np.float32)  # correctly rounded
+    xla = np.concatenate([k7 * np.float32(1 / 7), c3 * np.float32(1 / 3)])  # what a jitted x/7 gives
+    np.testing.assert_array_equal(codec.encode(jnp.asarray(xla)), np.r_[np.arange(8) * 3, np.arange(4) * 7])
+    assert codec.roundtrip_error(exact) <= 6e-8 and codec.roundtrip_error(xla) <= 6e-8  # ≤ 1 ulp of 1.0
+    assert ObsCodec("uint8").roundtrip_error(exact) > 0.1  # unscaled uint8 would lose them
 
 
 def test_storage_dtypes_and_bytes():

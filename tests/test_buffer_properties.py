@@ -10,10 +10,10 @@ import functools
 
 import jax
 import numpy as np
+from _buffer_fixtures import config_for, reference_accumulators, synthetic_rollout
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from _buffer_fixtures import config_for, reference_accumulators, synthetic_rollout
 from jaxmac import episode, views
 
 H, GAMMA = 10, 0.9

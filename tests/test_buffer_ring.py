@@ -6,8 +6,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-
 from _buffer_fixtures import config_for, synthetic_rollout
+
 from jaxmac import episode, ring
 
 H, N_AGENTS = 4, 2
@@ -48,7 +48,7 @@ def test_wrap_around_keeps_exactly_the_newest(slots):
     # slot contents are the episodes themselves, not just the ids
     for pos, ep_id in enumerate(np.asarray(r.episode_id)):
         for a, b in zip(jax.tree_util.tree_leaves(slots[ep_id]),
-                        jax.tree_util.tree_leaves(jax.tree_util.tree_map(lambda x: x[pos], r.slots))):
+                        jax.tree_util.tree_leaves(jax.tree_util.tree_map(lambda x, pos=pos: x[pos], r.slots))):
             np.testing.assert_array_equal(a, b)
 
 

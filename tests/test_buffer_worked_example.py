@@ -10,8 +10,8 @@ frozen macro-observation names the row it was taken at (o^i_k of the document = 
 import jax
 import numpy as np
 import pytest
-
 from _buffer_fixtures import config_for, synthetic_rollout
+
 from jaxmac import episode, views
 
 G = 0.5
