@@ -154,3 +154,7 @@ def test_jit_and_vmap_equal_plain(slot):
         for b in range(2):
             for leaf_p, leaf_b in zip(jax.tree_util.tree_leaves(plain[b]), jax.tree_util.tree_leaves(batched)):
                 np.testing.assert_array_equal(leaf_p, leaf_b[b])
+    # two leading axes (seeds × episodes) are vmapped too
+    seeds = jax.tree_util.tree_map(lambda x: np.stack([x, x[::-1]]), batch)
+    two = jax.jit(views.jert_view)(seeds)
+    np.testing.assert_array_equal(two.reward[1, 0], views.jert_view(other).reward)
