@@ -86,17 +86,17 @@ def test_overcooked_fractions_round_trip_in_scaled_uint8():
 
 
 def test_storage_dtypes_and_bytes():
-    reset_ts, traj, info = synthetic_rollout(np.ones((5, 2), bool), np.ones(5), 5)
+    reset_ts, traj, info = synthetic_rollout(np.ones((6, 2), bool), np.ones(6), 6)
     sizes = {}
     for dtype in ("float32", "float16", "uint8", "bool"):
-        cfg = config_for(5, 2, 0.9, obs=ObsCodec(dtype))
+        cfg = config_for(6, 2, 0.5, obs=ObsCodec(dtype))
         slot = episode.write_episode(cfg, reset_ts, traj)
         assert slot.obs_real.dtype == np.dtype(dtype) and slot.obs_macro.dtype == np.dtype(dtype)
         sizes[dtype] = episode.slot_nbytes(slot)
         assert sizes[dtype] == episode.slot_nbytes(cfg)
         if dtype in ("float32", "float16", "uint8"):  # small integers survive all three
             np.testing.assert_array_equal(slot.decode_obs(), info["obs_real"])
-    obs_entries = 2 * 6 * 2 * 3  # real + macro rows, [H+1, n, O]
+    obs_entries = 2 * 7 * 2 * 3  # real + macro rows, [H+1, n, O]
     assert sizes["float32"] - sizes["uint8"] == 3 * obs_entries
     assert sizes["float32"] - sizes["float16"] == 2 * obs_entries
 
@@ -142,20 +142,20 @@ def test_writer_rejects_wrong_shapes():
 
 
 def test_k_max_smaller_than_segments_keeps_the_first_and_counts_all():
-    reset_ts, traj, _ = synthetic_rollout(np.ones((5, 2), bool), np.arange(5), 5, end="truncated")
-    slot = episode.write_episode(config_for(5, 2, 0.9, k_max=3), reset_ts, traj)
+    reset_ts, traj, _ = synthetic_rollout(np.ones((6, 2), bool), np.arange(6), 6, end="truncated")
+    slot = episode.write_episode(config_for(6, 2, 0.5, k_max=3), reset_ts, traj)
     np.testing.assert_array_equal(slot.segments.end, [[0, 1, 2]] * 2)
     np.testing.assert_array_equal(slot.segments.R_m, [[0, 1, 2]] * 2)
-    np.testing.assert_array_equal(slot.segments.count, [5, 5])
+    np.testing.assert_array_equal(slot.segments.count, [6, 6])
     assert views.cert_view(slot).mask.shape == (2, 3)
 
 
 def test_close_on_terminal_flag():
     """A macro-action still running at termination is a complete (terminal) segment by
     default; with close_on_terminal=False it is dropped like at truncation (MacroMARL)."""
-    reset_ts, traj, _ = synthetic_rollout(np.zeros((5, 2), bool), np.ones(5), 3, end="terminated")
-    on = episode.write_episode(config_for(5, 2, 0.5), reset_ts, traj)
-    off = episode.write_episode(config_for(5, 2, 0.5, close_on_terminal=False), reset_ts, traj)
+    reset_ts, traj, _ = synthetic_rollout(np.zeros((6, 2), bool), np.ones(6), 3, end="terminated")
+    on = episode.write_episode(config_for(6, 2, 0.5), reset_ts, traj)
+    off = episode.write_episode(config_for(6, 2, 0.5, close_on_terminal=False), reset_ts, traj)
     np.testing.assert_array_equal(on.segments.count, [1, 1])
     np.testing.assert_array_equal(on.segments.R_m[:, 0], [1.75, 1.75])
     np.testing.assert_array_equal(views.macro_view(on).discount[:, 0], [0.0, 0.0])

@@ -20,15 +20,19 @@ H, GAMMA = 10, 0.9
 SETTINGS = settings(max_examples=30, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 
 
+N_STEPS = (1, 3, 5)
+
+
 @functools.lru_cache(maxsize=None)
-def writer(n):
-    return jax.jit(functools.partial(episode.write_episode, config_for(H, n, GAMMA)))
+def pipeline(n):
+    """Writer and every view in one jitted call (one compile per agent count)."""
 
+    def run(reset_ts, traj):
+        slot = episode.write_episode(config_for(H, n, GAMMA), reset_ts, traj)
+        micro = {k: views.micro_view(slot, k) for k in N_STEPS}
+        return slot, micro, views.macro_view(slot), views.jert_view(slot), views.cert_view(slot)
 
-micro = jax.jit(views.micro_view, static_argnums=1)
-macro = jax.jit(views.macro_view)
-jert = jax.jit(views.jert_view)
-cert = jax.jit(views.cert_view)
+    return jax.jit(run)
 
 
 @st.composite
@@ -40,8 +44,9 @@ def rollouts(draw):
     reward = np.array(draw(st.lists(st.integers(-40, 40), min_size=H, max_size=H)), np.float32) / 4
     seed = draw(st.integers(0, 2**16))
     reset_ts, traj, info = synthetic_rollout(mac_done, reward, length, end=end, seed=seed)
-    slot = writer(n)(reset_ts, traj)
-    return dict(n=n, mac_done=mac_done, length=length, end=end, reward=reward, slot=slot, traj=traj, **info)
+    slot, micro, macro, jert, cert = pipeline(n)(reset_ts, traj)
+    return dict(n=n, mac_done=mac_done, length=length, end=end, reward=reward, slot=slot, micro=micro,
+                macro=macro, jert=jert, cert=cert, **info)
 
 
 def discounted(rewards):
@@ -91,11 +96,11 @@ def test_segments_partition_each_agents_steps(ep):
 @SETTINGS
 @given(rollouts())
 def test_jert_and_cert_match_the_running_accumulator_reference(ep):
-    s, L, done, n = ep["slot"], ep["length"], ep["mac_done"], ep["n"]
+    L, done, n = ep["length"], ep["mac_done"], ep["n"]
     joint, agents = reference_accumulators(done, ep["reward"], L, GAMMA)
     last_obs = ep["obs_macro"]  # the record's "last_obs" at step t is obs_macro row t
 
-    v = jert(s)
+    v = ep["jert"]
     kept = [t for t in range(L) if done[t].any()]
     k = len(kept)
     np.testing.assert_array_equal(v.mask, np.arange(H) < k)
@@ -111,7 +116,7 @@ def test_jert_and_cert_match_the_running_accumulator_reference(ep):
                                rtol=1e-6)
     assert not v.reward[k:].any() and not v.discount[k:].any()
 
-    c = cert(s)
+    c = ep["cert"]
     for i in range(n):
         kept_i = [t for t in range(L) if done[t, i]]
         k = len(kept_i)
@@ -124,10 +129,10 @@ def test_jert_and_cert_match_the_running_accumulator_reference(ep):
 
 
 @SETTINGS
-@given(rollouts(), st.sampled_from([1, 3, 5]))
+@given(rollouts(), st.sampled_from(N_STEPS))
 def test_micro_n_step_returns_equal_brute_force(ep, n_step):
-    s, L, r = ep["slot"], ep["length"], ep["reward"]
-    v = micro(s, n_step)
+    L, r = ep["length"], ep["reward"]
+    v = ep["micro"][n_step]
     terminated = ep["end"] == "terminated"
     for t in range(H):
         if t >= L:
@@ -150,7 +155,7 @@ def test_micro_n_step_returns_equal_brute_force(ep, n_step):
 @given(rollouts())
 def test_macro_view_targets(ep):
     s, L = ep["slot"], ep["length"]
-    m = macro(s)
+    m = ep["macro"]
     seg = s.segments
     np.testing.assert_array_equal(m.mask, seg.valid)
     for i, k in zip(*np.nonzero(np.asarray(seg.valid))):
