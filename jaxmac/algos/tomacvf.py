@@ -1,0 +1,187 @@
+"""ToMacVF: temporal agent networks + ATPG-parameterised QMIX, micro- and macro-TD (DECISIONS D2–D18).
+
+Parameters are ``{"agent": …, "mixer": …}`` (the mixer holds ATPG). On a sampled batch of
+episode slots (leaves ``[B, H, …]``, rows ``T = H + 1``):
+
+* the agent GRUs run over every row (``slot_inputs``), giving ``q [B, T, n, A]`` valued at the
+  progress ``tau`` of the action each agent executes from that row (0 for free agents);
+* the mixer's hyper-networks (ATPG over the same rows) give ``MixWeights [B, T]``;
+* **micro-TD** (D11): every valid step t, ``y = Σ_{k<m} γ^k r_{t+k} + γ^m Q̄_tot(t+m)``;
+* **macro-TD** (D10): every complete Mac-SJERT segment, ``Q_tot`` at its start row with the
+  joint action in force there, ``y = R_m + γ^τ Q̄_tot(end+1)``;
+* bootstrap values use the conditional (To-Mac-IGM) target (D9): free agents take the online
+  argmax at τ = 0 (double Q), busy agents keep their macro-action; the value comes from the
+  target networks through the target mixer;
+* ``L = mean δ_micro² + λ · mean δ_macro²`` (D8).
+
+``buffer="mac_jert"`` (the w/o-Mac-SJERT ablation, D16) trains the same networks on the
+Mac-JERT view instead: the GRU and ATPG run over the squeezed sequence of joint decision
+rows with frozen macro-observations, one TD loss with the conditional target.
+
+Acting (D17) is decentralised: each agent's GRU steps on its own observation stream and a
+free agent picks ε-greedily among its available macro-actions (τ = 0); the mixer is never
+used. In ``mac_jert`` mode the GRU steps only at joint decision points, as in training.
+"""
+
+from __future__ import annotations
+
+import chex
+import jax
+import jax.numpy as jnp
+
+from envs_jax.core import MacroEnv
+from envs_jax.policies import uniform_random_actions
+from jaxmac import views
+from jaxmac.config import TrainConfig
+from jaxmac.encodings import EncodingConfig
+from jaxmac.episode import EpisodeSlot
+from jaxmac.networks import (
+    AgentNetConfig,
+    ATPGConfig,
+    Mixer,
+    MixerConfig,
+    NetInputs,
+    TemporalAgentNet,
+    conditional_greedy,
+    gather_q,
+    init_agent_params,
+    init_mixer_params,
+    initial_carry,
+    masked_argmax,
+    mix,
+    slot_inputs,
+    take_rows,
+    timestep_inputs,
+)
+from jaxmac.trainer import Algorithm
+
+
+def network_configs(config: TrainConfig, env: MacroEnv) -> tuple[AgentNetConfig, MixerConfig]:
+    spec = env.spec
+    enc = EncodingConfig(dim_t=config.time_pe_dim, dim_tm=config.progress_pe_dim, use_t=config.use_time_pe)
+    agent = AgentNetConfig.from_spec(spec, hidden=config.rnn_size, fc=config.fc_size, encoding=enc)
+    kind = "vdn" if config.mixer == "vdn" else ("atpg_qmix" if config.mixer_params == "atpg" else "qmix")
+    atpg = ATPGConfig.from_spec(spec, embed=config.attn_dim, delta=config.attn_delta,
+                                attn_window=config.attn_window or None, encoding=enc)
+    mixer = MixerConfig.from_spec(spec, kind=kind, embed=config.mixer_embed, atpg=atpg)
+    return agent, mixer
+
+
+def _mse(delta: chex.Array, mask: chex.Array) -> chex.Array:
+    mask = mask.astype(jnp.float32)
+    return jnp.sum(mask * delta**2) / jnp.maximum(mask.sum(), 1.0)
+
+
+def make_tomacvf(config: TrainConfig, env: MacroEnv) -> Algorithm:
+    agent_cfg, mixer_cfg = network_configs(config, env)
+    net = TemporalAgentNet(agent_cfg)
+    mixer = Mixer(mixer_cfg)
+    obs_mode = config.obs_mode if config.buffer == "mac_sjert" else "macro"
+    squeezed = config.buffer == "mac_jert"
+    lam = config.macro_loss_weight
+
+    def init_params(key):
+        k_agent, k_mixer = jax.random.split(key)
+        return {"agent": init_agent_params(agent_cfg, k_agent), "mixer": init_mixer_params(mixer_cfg, k_mixer)}
+
+    # --- acting -------------------------------------------------------------------------
+    def init_carry(num_agents: int):
+        return initial_carry(agent_cfg)
+
+    def act(params, carry, ts, key, epsilon):
+        inputs = timestep_inputs(ts)
+        if obs_mode == "macro":
+            inputs = inputs.replace(obs=jnp.asarray(ts.obs_macro, jnp.float32))
+        tau = jnp.zeros_like(ts.t_m)  # free agents value their choice at τ = 0
+        q, new_carry = net.apply(params["agent"], inputs, carry, tau, method="step")
+        if squeezed:  # the GRU only sees joint decision points
+            new_carry = jnp.where(jnp.any(ts.mac_done), new_carry, carry)
+        k_explore, k_random = jax.random.split(key)
+        explore = jax.random.uniform(k_explore, ts.mac_done.shape) < epsilon
+        chosen = jnp.where(explore, uniform_random_actions(k_random, ts.avail_actions),
+                           masked_argmax(q, ts.avail_actions))
+        return new_carry, jnp.where(ts.mac_done, chosen, ts.mac)
+
+    # --- learning on Mac-SJERT ------------------------------------------------------------
+    def forward(params, inputs: NetInputs, tau, state):
+        b = inputs.t.shape[:-1]
+        q, _, _ = net.apply(params["agent"], inputs, initial_carry(agent_cfg, b), tau)
+        weights, _ = mixer.apply(params["mixer"], state, inputs)
+        return q, weights
+
+    def bootstrap(q_online, q_target, w_target, rows, avail, free, pinned):
+        """Q̄_tot at bootstrap ``rows`` [B, ...] with the conditional double-Q joint action."""
+        qo, qt, wt = (take_rows(x, rows, batch_ndim=1) for x in (q_online, q_target, w_target))
+        joint = conditional_greedy(qo, avail, free, pinned)
+        return mix(wt, gather_q(qt, joint))
+
+    def sjert_loss(params, target_params, batch: EpisodeSlot):
+        inputs, tau = slot_inputs(batch, obs_mode)
+        state = batch.decode_state()
+        q, w = forward(params, inputs, tau, state)
+        q_tgt, w_tgt = forward(target_params, inputs, tau, state)
+        q_detached = jax.lax.stop_gradient(q)
+        h = batch.mac.shape[-2]
+
+        micro = views.micro_view(batch, config.n_step)
+        q_tot = mix(take_rows(w, jnp.broadcast_to(jnp.arange(h), micro.mask.shape), 1),
+                    gather_q(q[:, :h], micro.mac))
+        boot = bootstrap(q_detached, q_tgt, w_tgt, micro.boot_row, micro.boot_avail, micro.boot_free,
+                         micro.boot_mac)
+        y_micro = jax.lax.stop_gradient(micro.ret + micro.boot_discount * boot)
+        micro_loss = _mse(q_tot - y_micro, micro.mask)
+
+        macro = views.macro_view(batch)  # leaves [B, n, K, ...]
+        q_start = take_rows(q, macro.start, batch_ndim=1)  # [B, n, K, n, A]
+        w_start = take_rows(w, macro.start, batch_ndim=1)
+        q_tot_m = mix(w_start, gather_q(q_start, macro.start_mac))
+        boot_m = bootstrap(q_detached, q_tgt, w_tgt, macro.boot_row, macro.boot_avail, macro.boot_free,
+                           macro.boot_mac)
+        y_macro = jax.lax.stop_gradient(macro.reward + macro.discount * boot_m)
+        macro_loss = _mse(q_tot_m - y_macro, macro.mask)
+        total = micro_loss + lam * macro_loss
+        return total, {"micro_loss": micro_loss, "macro_loss": macro_loss,
+                       "q_tot_mean": jnp.sum(q_tot * micro.mask) / jnp.maximum(micro.mask.sum(), 1)}
+
+    # --- learning on Mac-JERT (ablation) ---------------------------------------------------
+    def jert_sequence(batch: EpisodeSlot):
+        """The squeezed sequence of joint decision rows (K entries + the row after the last)."""
+        jv = views.jert_view(batch)  # leaves [B, K, ...]
+        count = jv.mask.sum(-1)  # [B]
+        k = jnp.arange(jv.mask.shape[-1] + 1)
+
+        def pad_last(x, last):
+            return jnp.concatenate([x, last[:, None]], axis=1)
+
+        last_idx = jnp.maximum(count - 1, 0)
+        at_last = lambda x: jnp.take_along_axis(x, last_idx.reshape((-1,) + (1,) * (x.ndim - 1)), 1)[:, 0]  # noqa: E731
+        obs = pad_last(jv.obs, at_last(jv.obs_next))
+        state = pad_last(jv.state, at_last(jv.state_next))
+        t = pad_last(jv.t, at_last(jv.step) + 1)
+        prev_mac = jnp.concatenate([jnp.full_like(jv.mac[:, :1], -1), jv.mac], axis=1)
+        prev_step = jnp.concatenate([jnp.full_like(jv.step[:, :1], -1), jv.step], axis=1)
+        t_m_exec = jnp.take_along_axis(batch.t_m, jv.step[..., None], axis=1)  # progress at kept steps
+        prev_t_m = jnp.concatenate([jnp.zeros_like(t_m_exec[:, :1]), t_m_exec], axis=1)
+        tau = pad_last(jv.t_m, at_last(jv.next_t_m))
+        inputs = NetInputs(obs=obs, t=t, prev_t=prev_step, prev_mac=prev_mac, prev_t_m=prev_t_m,
+                           reset=jnp.broadcast_to(k == 0, t.shape))
+        return jv, inputs, tau, state
+
+    def jert_loss(params, target_params, batch: EpisodeSlot):
+        jv, inputs, tau, state = jert_sequence(batch)
+        q, w = forward(params, inputs, tau, state)
+        q_tgt, w_tgt = forward(target_params, inputs, tau, state)
+        kk = jv.mask.shape[-1]
+        q_tot = mix(take_rows(w, jnp.broadcast_to(jnp.arange(kk), jv.mask.shape), 1), gather_q(q[:, :kk], jv.mac))
+        nxt = jnp.broadcast_to(jnp.arange(1, kk + 1), jv.mask.shape)
+        boot = bootstrap(jax.lax.stop_gradient(q), q_tgt, w_tgt, nxt, jv.avail_next, jv.free_next, jv.next_mac)
+        y = jax.lax.stop_gradient(jv.reward + jv.discount * boot)
+        loss = _mse(q_tot - y, jv.mask)
+        return loss, {"micro_loss": loss, "macro_loss": jnp.zeros(()),
+                      "q_tot_mean": jnp.sum(q_tot * jv.mask) / jnp.maximum(jv.mask.sum(), 1)}
+
+    def loss(params, target_params, batch: EpisodeSlot, key):
+        del key
+        return (jert_loss if squeezed else sjert_loss)(params, target_params, batch)
+
+    return Algorithm(name="tomacvf", init_params=init_params, init_carry=init_carry, act=act, loss=loss)

@@ -1,0 +1,64 @@
+"""Learning curves from a run's ``metrics.csv`` (mean ± standard error over seeds)."""
+
+from __future__ import annotations
+
+import csv
+import math
+from collections import defaultdict
+
+import numpy as np
+
+
+def read_eval_curves(csv_path: str, column: str = "eval_disc_return") -> tuple[np.ndarray, np.ndarray]:
+    """Evaluation points of every seed: ``episodes [P]`` and ``values [seeds, P]``."""
+    per_seed: dict[int, list[tuple[int, float]]] = defaultdict(list)
+    with open(csv_path, newline="") as f:
+        for row in csv.DictReader(f):
+            value = float(row[column])
+            if not math.isnan(value):
+                per_seed[int(row["seed"])].append((int(row["episodes"]), value))
+    if not per_seed:
+        return np.zeros(0), np.zeros((0, 0))
+    seeds = sorted(per_seed)
+    points = min(len(per_seed[s]) for s in seeds)
+    episodes = np.array([e for e, _ in per_seed[seeds[0]][:points]])
+    values = np.array([[v for _, v in per_seed[s][:points]] for s in seeds])
+    return episodes, values
+
+
+def smooth(values: np.ndarray, window: int) -> np.ndarray:
+    """Trailing moving average over the last ``window`` points (DECISIONS D15), per row."""
+    if window <= 1 or values.shape[-1] == 0:
+        return values
+    c = np.cumsum(np.pad(values, [(0, 0)] * (values.ndim - 1) + [(1, 0)]), axis=-1)
+    idx = np.arange(values.shape[-1])
+    lo = np.maximum(idx + 1 - window, 0)
+    return (c[..., idx + 1] - c[..., lo]) / (idx + 1 - lo)
+
+
+def plot_learning_curve(csv_path: str, png_path: str, title: str, optimum: float | None = None,
+                        window: int = 10) -> None:
+    """Mean ± s.e. over seeds of the smoothed greedy evaluation return."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    episodes, values = read_eval_curves(csv_path)
+    fig, ax = plt.subplots(figsize=(6.4, 4.0), dpi=120)
+    if values.size:
+        sm = smooth(values, window)
+        mean = sm.mean(0)
+        se = sm.std(0, ddof=1) / np.sqrt(sm.shape[0]) if sm.shape[0] > 1 else np.zeros_like(mean)
+        ax.plot(episodes, mean, label=f"ToMacVF (mean of {sm.shape[0]} seeds)")
+        ax.fill_between(episodes, mean - se, mean + se, alpha=0.3, label="± standard error")
+    if optimum is not None:
+        ax.axhline(optimum, color="k", ls="--", lw=1, label=f"optimal ({optimum:.1f})")
+    ax.set_xlabel("training episodes")
+    ax.set_ylabel("greedy discounted return")
+    ax.set_title(title)
+    ax.grid(alpha=0.3)
+    ax.legend(loc="lower right")
+    fig.tight_layout()
+    fig.savefig(png_path)
+    plt.close(fig)

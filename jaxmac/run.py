@@ -1,0 +1,250 @@
+"""The thin host loop around the compiled trainer: seeds, progress, metrics, checkpoints, plots.
+
+``train_run(config, seeds, out_dir)`` vmaps the trainer over ``seeds`` seeds and calls its
+compiled chunk repeatedly; between chunks it appends the per-round metrics to
+``metrics.csv``, saves an orbax checkpoint (atomic: written aside, then renamed) and updates
+the progress bar. ``resume_run(out_dir)`` continues a killed run from its newest checkpoint
+and ends with the same result as an uninterrupted run. A run folder holds::
+
+    config.json     resolved TrainConfig + seeds + chunking (the resume source of truth)
+    metrics.csv     one row per seed and round
+    curve.png       learning curve: greedy discounted return, mean ± s.e. over seeds
+    summary.json    final greedy evaluation per seed (discounted and undiscounted)
+    checkpoints/    orbax checkpoints of the whole training state
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import time
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxmac.config import TrainConfig
+
+METRIC_COLUMNS = ("seed", "round", "episodes", "epsilon", "train_return", "train_disc_return", "train_length",
+                  "eval_disc_return", "eval_return", "loss")
+
+# Discounted optimal returns (SPEC §13 / BASELINES §3.2) drawn on the curves.
+OPTIMAL_DISC_RETURN = {
+    "boxpushing-6x6": 270.605, "boxpushing-8x8": 259.691, "boxpushing-10x10": 244.125,
+    "boxpushing-12x12": 229.475, "boxpushing-14x14": 215.686,
+}
+
+
+def enable_compilation_cache(path: str | None = None) -> None:
+    """JAX's persistent compilation cache: a re-run skips most compilation."""
+    path = path or os.environ.get("JAXMAC_CACHE", os.path.expanduser("~/.cache/jaxmac/xla"))
+    jax.config.update("jax_compilation_cache_dir", path)
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
+    jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
+
+
+def _build(config: TrainConfig, rounds_per_chunk: int | None):
+    import envs_jax
+    from jaxmac.algos import make_algorithm
+    from jaxmac.trainer import make_train
+
+    env = envs_jax.make(config.scenario)
+    return make_train(config, env, make_algorithm(config, env), rounds_per_chunk)
+
+
+def _checkpointer(out_dir: str):
+    import orbax.checkpoint as ocp
+
+    return ocp.CheckpointManager(
+        os.path.abspath(os.path.join(out_dir, "checkpoints")),
+        options=ocp.CheckpointManagerOptions(max_to_keep=2, create=True),
+    )
+
+
+def _to_saveable(state):
+    return state.replace(key=jax.random.key_data(state.key))
+
+
+def _from_saved(state):
+    return state.replace(key=jax.random.wrap_key_data(state.key))
+
+
+def _write_metrics(path: str, metrics: dict[str, np.ndarray], seed_ids: list[int], first_round: int) -> None:
+    """Append rows for metrics with leaves [seeds, rounds]."""
+    new = not os.path.exists(path)
+    seeds, rounds = np.shape(metrics["episodes"])
+    with open(path, "a", newline="") as f:
+        w = csv.writer(f)
+        if new:
+            w.writerow(METRIC_COLUMNS)
+        for s in range(seeds):
+            for r in range(rounds):
+                row = [seed_ids[s], first_round + r]
+                row += [float(metrics[k][s, r]) if k in metrics else float("nan") for k in METRIC_COLUMNS[2:]]
+                w.writerow(row)
+
+
+def _truncate_metrics(path: str, rounds_done: int) -> None:
+    """Drop rows of rounds that a resumed run will redo (written after the last checkpoint)."""
+    if not os.path.exists(path):
+        return
+    with open(path, newline="") as f:
+        rows = list(csv.reader(f))
+    keep = [rows[0]] + [r for r in rows[1:] if int(r[1]) < rounds_done]
+    tmp = path + ".tmp"
+    with open(tmp, "w", newline="") as f:
+        csv.writer(f).writerows(keep)
+    os.replace(tmp, path)
+
+
+def _atomic_json(path: str, obj: Any) -> None:
+    tmp = path + ".tmp"
+    with open(tmp, "w") as f:
+        json.dump(obj, f, indent=2)
+    os.replace(tmp, path)
+
+
+def train_run(
+    config: TrainConfig,
+    seeds: int,
+    out_dir: str,
+    seed_offset: int = 0,
+    rounds_per_chunk: int | None = None,
+    checkpoint_seconds: float = 120.0,
+    progress: bool = True,
+    stop_after_chunks: int | None = None,
+) -> dict[str, Any] | None:
+    """Train ``seeds`` seeds (``seed_offset … seed_offset+seeds-1``) into ``out_dir``.
+
+    ``stop_after_chunks`` stops early (as if killed) after that many chunks of this call,
+    checkpointing first — used by tests of resume. Returns the summary (None if stopped).
+    """
+    if seeds < 1:
+        raise ValueError(f"seeds={seeds!r} must be >= 1")
+    os.makedirs(out_dir, exist_ok=True)
+    if os.path.exists(os.path.join(out_dir, "config.json")):
+        raise ValueError(f"{out_dir} already holds a run; use resume (jaxmac train --resume {out_dir}) "
+                         "or choose another --out")
+    trainer = _build(config, rounds_per_chunk)
+    meta = {"config": config.to_dict(), "seeds": seeds, "seed_offset": seed_offset,
+            "rounds_per_chunk": trainer.rounds_per_chunk, "jax": jax.__version__}
+    _atomic_json(os.path.join(out_dir, "config.json"), meta)
+    keys = jax.vmap(jax.random.key)(jnp.arange(seed_offset, seed_offset + seeds))
+    state = jax.jit(jax.vmap(trainer.init))(keys)
+    return _loop(trainer, state, 0, out_dir, meta, checkpoint_seconds, progress, stop_after_chunks, 0.0)
+
+
+def resume_run(out_dir: str, checkpoint_seconds: float = 120.0, progress: bool = True,
+               stop_after_chunks: int | None = None) -> dict[str, Any] | None:
+    """Continue the run in ``out_dir`` from its newest checkpoint (or from scratch if none)."""
+    path = os.path.join(out_dir, "config.json")
+    if not os.path.exists(path):
+        raise ValueError(f"{out_dir} holds no run (no config.json)")
+    with open(path) as f:
+        meta = json.load(f)
+    config = TrainConfig(**meta["config"])
+    trainer = _build(config, meta["rounds_per_chunk"])
+    keys = jax.vmap(jax.random.key)(jnp.arange(meta["seed_offset"], meta["seed_offset"] + meta["seeds"]))
+    state = jax.jit(jax.vmap(trainer.init))(keys)
+    mngr = _checkpointer(out_dir)
+    step = mngr.latest_step()
+    wall = 0.0
+    if step is None:
+        chunk = 0
+    else:
+        import orbax.checkpoint as ocp
+
+        abstract = jax.eval_shape(lambda s: _to_saveable(s), state)
+        state = _from_saved(mngr.restore(step, args=ocp.args.StandardRestore(abstract)))
+        chunk = step
+        progress_path = os.path.join(out_dir, "progress.json")
+        if os.path.exists(progress_path):
+            with open(progress_path) as f:
+                wall = float(json.load(f)["wall_seconds"])
+    mngr.close()
+    _truncate_metrics(os.path.join(out_dir, "metrics.csv"), chunk * trainer.rounds_per_chunk)
+    return _loop(trainer, state, chunk, out_dir, meta, checkpoint_seconds, progress, stop_after_chunks, wall)
+
+
+def _loop(trainer, state, chunk, out_dir, meta, checkpoint_seconds, progress, stop_after_chunks, wall_before):
+    import orbax.checkpoint as ocp
+    from tqdm import tqdm
+
+    config = trainer.config
+    seed_ids = list(range(meta["seed_offset"], meta["seed_offset"] + meta["seeds"]))
+    train_chunk = jax.jit(jax.vmap(trainer.train_chunk), donate_argnums=0)
+    mngr = _checkpointer(out_dir)
+    metrics_path = os.path.join(out_dir, "metrics.csv")
+    total = trainer.total_chunks
+    episodes_per_chunk = trainer.rounds_per_chunk * config.num_envs
+    bar = tqdm(total=total * episodes_per_chunk, initial=chunk * episodes_per_chunk, unit="ep",
+               desc=f"{config.scenario} x{meta['seeds']} seeds", disable=not progress, dynamic_ncols=True)
+    start = time.perf_counter()
+    last_ckpt = time.perf_counter()
+    last_eval = float("nan")
+    done_here = 0
+    while chunk < total:
+        state, metrics = train_chunk(state)
+        metrics = jax.device_get(metrics)
+        _write_metrics(metrics_path, metrics, seed_ids, chunk * trainer.rounds_per_chunk)
+        chunk += 1
+        done_here += 1
+        evals = metrics["eval_disc_return"]
+        if np.isfinite(evals).any():
+            last_eval = float(np.nanmean(evals[:, np.isfinite(evals).any(0)][:, -1]))
+        bar.update(episodes_per_chunk)
+        bar.set_postfix(eval_return=f"{last_eval:.1f}", eps=f"{float(metrics['epsilon'][0, -1]):.2f}")
+        stopping = stop_after_chunks is not None and done_here >= stop_after_chunks and chunk < total
+        if chunk == total or stopping or time.perf_counter() - last_ckpt >= checkpoint_seconds:
+            mngr.save(chunk, args=ocp.args.StandardSave(_to_saveable(state)))
+            mngr.wait_until_finished()
+            _atomic_json(os.path.join(out_dir, "progress.json"),
+                         {"chunks_done": chunk, "wall_seconds": wall_before + time.perf_counter() - start})
+            last_ckpt = time.perf_counter()
+        if stopping:
+            bar.close()
+            mngr.close()
+            return None
+    bar.close()
+    mngr.close()
+    wall = wall_before + time.perf_counter() - start
+    return _finish(trainer, state, out_dir, meta, wall)
+
+
+def _finish(trainer, state, out_dir, meta, wall_seconds):
+    """Final greedy evaluation per seed, summary.json and the learning-curve plot."""
+    from jaxmac.plotting import plot_learning_curve
+
+    config = trainer.config
+    keys = jax.vmap(lambda s: jax.random.fold_in(jax.random.key(10_007), s))(
+        jnp.arange(meta["seed_offset"], meta["seed_offset"] + meta["seeds"]))
+    stats = jax.jit(jax.vmap(lambda p, k: trainer.evaluate(p, k, config.eval_episodes)))(state.params, keys)
+    disc = np.asarray(stats["disc_return"]).mean(-1)
+    undisc = np.asarray(stats["return"]).mean(-1)
+    summary = {
+        "scenario": config.scenario,
+        "algorithm": config.algorithm,
+        "seeds": meta["seeds"],
+        "seed_offset": meta["seed_offset"],
+        "episodes": int(np.asarray(state.episodes)[0]),
+        "wall_seconds": wall_seconds,
+        "discount": trainer.env.spec.discount,
+        "final_greedy_return": disc.tolist(),
+        "final_greedy_return_mean": float(disc.mean()),
+        "final_greedy_return_undiscounted": undisc.tolist(),
+        "final_greedy_return_undiscounted_mean": float(undisc.mean()),
+        "optimal_return": OPTIMAL_DISC_RETURN.get(config.scenario),
+    }
+    _atomic_json(os.path.join(out_dir, "summary.json"), summary)
+    plot_learning_curve(os.path.join(out_dir, "metrics.csv"), os.path.join(out_dir, "curve.png"),
+                        f"{config.algorithm} on {config.scenario}", OPTIMAL_DISC_RETURN.get(config.scenario))
+    return summary
+
+
+def default_out_dir(config: TrainConfig) -> str:
+    stamp = time.strftime("%Y%m%d-%H%M%S")
+    return os.path.join("runs", f"{config.scenario}-{config.algorithm}-{stamp}")
+
+
