@@ -82,7 +82,8 @@ def _write_metrics(path: str, metrics: dict[str, np.ndarray], seed_ids: list[int
         for s in range(seeds):
             for r in range(rounds):
                 row = [seed_ids[s], first_round + r]
-                row += [float(metrics[k][s, r]) if k in metrics else float("nan") for k in METRIC_COLUMNS[2:]]
+                row += [int(metrics["episodes"][s, r])]
+                row += [float(metrics[k][s, r]) if k in metrics else float("nan") for k in METRIC_COLUMNS[3:]]
                 w.writerow(row)
 
 
