@@ -25,8 +25,10 @@ our ``truncated`` is the horizon cut without it (the trace's ``truncated & ~done
 
 from __future__ import annotations
 
+import dataclasses
+import functools
 import json
-from typing import Mapping
+from collections.abc import Mapping
 
 import jax
 import jax.numpy as jnp
@@ -54,7 +56,7 @@ def env_for_trace(meta: dict) -> WarehouseEnv:
         if kw.get(key, value) != value:
             raise ValueError(f"trace uses {key}={kw[key]!r}; only {value!r} is modelled")
     noisy = bool(kw["TB_move_noisy"]) or bool(kw["fetch_manip_noisy"])
-    cls_env = make_warehouse(
+    env = make_warehouse(
         meta["variant"],
         horizon=int(meta["horizon"]),
         human_durations=tuple(tuple(int(x) for x in row) for row in kw["human_speed_per_step"]),
@@ -63,11 +65,16 @@ def env_for_trace(meta: dict) -> WarehouseEnv:
         move_noise_std=float(kw["TB_move_noisy"]),
         fetch_duration_noise=bool(kw["fetch_manip_noisy"]),
     )
-    if int(kw.get("terminate_step", meta["horizon"])) != int(meta["horizon"]) and cls_env.config.done_at_horizon:
+    if int(kw.get("terminate_step", meta["horizon"])) != int(meta["horizon"]) and env.config.done_at_horizon:
         raise ValueError("trace's terminate_step differs from its horizon; not modelled")
-    if noisy:
-        return InjectedNoiseEnv(cls_env.layout, cls_env.config, cls_env.spec.name)
-    return cls_env
+    return _cached_env(meta["variant"], env.config, noisy)
+
+
+@functools.lru_cache(maxsize=32)
+def _cached_env(variant: str, config: V.WarehouseConfig, injected: bool) -> WarehouseEnv:
+    """One env object per configuration, so that compiled replays are reused across files."""
+    cls = InjectedNoiseEnv if injected else WarehouseEnv
+    return cls(V.LAYOUTS[variant], config, f"warehouse-{variant}")
 
 
 def _expected_t_m(d: Mapping[str, np.ndarray]) -> np.ndarray:
@@ -104,46 +111,46 @@ def _tau_float64(tau: np.ndarray) -> np.ndarray:
 def state_from_rows(
     env: WarehouseEnv, d: Mapping[str, np.ndarray], rows: np.ndarray, t_m: np.ndarray
 ) -> tuple[EnvState, np.ndarray]:
-    """Batched EnvState rebuilt from recorded rows (their full internal state), and the
-    motion-graph points of the recorded positions (-1 off the graph; exact mode only)."""
-    take = lambda k: np.asarray(d[k])[rows]  # noqa: E731
-    n_t = env.n_robots
+    """Batched EnvState (numpy leaves) rebuilt from recorded rows (their full internal
+    state), and the motion-graph points of the recorded positions (-1 off the graph;
+    exact mode only)."""
+    take = lambda k: np.asarray(d[k])[rows]
     xy = take("rb_xy")
     pt = _points(env, xy) if env.exact_motion else np.zeros(xy.shape[:2], np.int32)
     core = WarehouseCore(
-        rb_xy=jnp.asarray(xy, jnp.float32),
-        rb_pt=jnp.asarray(np.maximum(pt, 0)),
-        rb_wp=jnp.asarray(take("rb_wp"), jnp.int32),
-        rb_tau=jnp.asarray(_tau_cents(take("rb_tleft"))),
-        basket=jnp.asarray(take("rb_basket"), jnp.int32),
-        f_act=jnp.asarray(take("f_act"), jnp.int32),
-        f_tau=jnp.asarray(np.rint(take("f_tleft")), jnp.int32),
-        f_failed=jnp.asarray(take("f_failed")),
-        staging=jnp.asarray(take("f_staging"), jnp.int32),
-        found=jnp.asarray(take("f_found_count"), jnp.int32),
-        h_phase=jnp.asarray(take("h_step"), jnp.int32),
-        h_time=jnp.asarray(np.rint(take("h_tleft")), jnp.int32),
-        h_got=jnp.asarray(take("h_obtained")),
-        h_fin=jnp.asarray(take("h_finished")),
-        served=jnp.asarray(take("h_served")),
-        count_step=jnp.asarray(take("count_step"), jnp.int32),
+        rb_xy=np.asarray(xy, np.float32),
+        rb_pt=np.asarray(np.maximum(pt, 0)),
+        rb_wp=np.asarray(take("rb_wp"), np.int32),
+        rb_tau=np.asarray(_tau_cents(take("rb_tleft"))),
+        basket=np.asarray(take("rb_basket"), np.int32),
+        f_act=np.asarray(take("f_act"), np.int32),
+        f_tau=np.asarray(np.rint(take("f_tleft")), np.int32),
+        f_failed=np.asarray(take("f_failed")),
+        staging=np.asarray(take("f_staging"), np.int32),
+        found=np.asarray(take("f_found_count"), np.int32),
+        h_phase=np.asarray(take("h_step"), np.int32),
+        h_time=np.asarray(np.rint(take("h_tleft")), np.int32),
+        h_got=np.asarray(take("h_obtained")),
+        h_fin=np.asarray(take("h_finished")),
+        served=np.asarray(take("h_served")),
+        count_step=np.asarray(take("count_step"), np.int32),
     )
     mac = np.concatenate([take("rb_act"), take("f_act")[:, None]], axis=1)
     done = np.concatenate([take("rb_done"), take("f_done")[:, None]], axis=1)
     return EnvState(
         core=core,
-        obs_macro=jnp.asarray(take("obs"), jnp.float32),
-        mac=jnp.asarray(mac, jnp.int32),
-        mac_done=jnp.asarray(done),
-        t_m=jnp.asarray(t_m[rows]),
-        t=jnp.asarray(take("count_step"), jnp.int32),
+        obs_macro=np.asarray(take("obs"), np.float32),
+        mac=np.asarray(mac, np.int32),
+        mac_done=np.asarray(done),
+        t_m=np.asarray(t_m[rows]),
+        t=np.asarray(take("count_step"), np.int32),
     ), pt
 
 
 def noise_from_rows(d: Mapping[str, np.ndarray], rows: np.ndarray) -> Noise:
     move = np.where(d["noise_move_drawn"][rows][..., None], d["noise_move"][rows], 0.0)
     fetch = np.where(d["noise_fetch_drawn"][rows], d["noise_fetch"][rows], 0)
-    return Noise(move=jnp.asarray(move, jnp.float32), fetch=jnp.asarray(fetch, jnp.int32))
+    return Noise(move=move.astype(np.float32), fetch=fetch.astype(np.int32))
 
 
 def view(env: WarehouseEnv, state: EnvState, ts) -> dict[str, jax.Array]:
@@ -184,77 +191,101 @@ def expected_rows(d: Mapping[str, np.ndarray], rows: np.ndarray, t_m: np.ndarray
 
 
 def _as_el(x: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """Rows of transitions ``[E*L, ...]`` (episode-major) as ``[E, L, ...]``."""
     return np.asarray(x).reshape(*shape, *np.shape(x)[1:])
 
 
 def _episode_rows(d):
+    """Episode offsets, ``valid[E, L]`` transitions and their post-step ``rows[E, L]``
+    (padding points at the episode's reset row)."""
     offsets = np.asarray(d["ep_offsets"])
     lengths = np.diff(offsets) - 1  # transitions per episode
-    E, L = len(lengths), int(lengths.max())
+    L = int(lengths.max())
     valid = np.arange(L)[None, :] < lengths[:, None]
     rows = np.where(valid, offsets[:-1, None] + 1 + np.arange(L)[None, :], offsets[:-1, None])
     return offsets, valid, rows
 
 
-def _one_step(env: WarehouseEnv, d, t_m, atol):
+def _keys(env: WarehouseEnv, d, rows: np.ndarray):
+    """Per-transition step "keys": the recorded draws for noise files, else (unused) PRNG keys."""
+    if isinstance(env, InjectedNoiseEnv):
+        return noise_from_rows(d, rows)
+    return np.zeros((rows.size,), np.uint32)  # seeds, turned into keys in the compiled replay
+
+
+@functools.lru_cache(maxsize=32)
+def _replay_fn(env: WarehouseEnv, E: int, L: int):
+    """The compiled replay of ``E`` episodes of ``L`` steps (see :func:`_replay`)."""
+    injected = isinstance(env, InjectedNoiseEnv)
+
+    def cat(a, b):
+        return jnp.concatenate([a, b])
+
+    def body(ours, xs):
+        pre_t, keys_t, acts_t = xs
+        junk = jnp.where(ours.mac_done, acts_t, -1)  # busy agents' entries must be ignored
+        state = jax.tree_util.tree_map(cat, pre_t, ours)
+        post, ts = jax.vmap(env.step)(jax.tree_util.tree_map(cat, keys_t, keys_t), state, cat(acts_t, junk))
+        return jax.tree_util.tree_map(lambda x: x[E:], post), view(env, post, ts)
+
+    @jax.jit
+    def run(pre, keys, actions):
+        if not injected:
+            keys = jax.vmap(jax.random.key)(keys)
+        keys = jax.tree_util.tree_map(lambda x: x.reshape(L, E, *x.shape[1:]), keys)
+        reset_state, reset_ts = env.reset(jax.random.key(0))
+        start = jax.tree_util.tree_map(lambda x: jnp.broadcast_to(x, (E,) + x.shape), reset_state)
+        return view(env, reset_state, reset_ts), jax.lax.scan(body, start, (pre, keys, actions))[1]
+
+    return run
+
+
+def _replay(env: WarehouseEnv, d, t_m, atol):
+    """One-step and rollout checks of a file in a single compiled ``lax.scan`` over time.
+
+    At scan step t a batch of 2E lanes goes through one ``vmap(env.step)``: lanes 0..E-1
+    replay transition t of every episode from its recorded pre-state (one-step check),
+    lanes E..2E-1 carry our own episodes from ``reset`` (rollout check, busy agents'
+    entries replaced by junk -1). One step in the program keeps compilation short.
+    """
     offsets, valid, rows = _episode_rows(d)
     E, L = valid.shape
-    post_rows = rows.ravel()
-    pre, pt = state_from_rows(env, d, post_rows - 1, t_m)
-    actions = jnp.asarray(d["action_in"][post_rows], jnp.int32)
-    keys = noise_from_rows(d, post_rows) if isinstance(env, InjectedNoiseEnv) else jax.random.split(
-        jax.random.key(0), len(post_rows))
-    post, ts = jax.jit(jax.vmap(env.step))(keys, pre, actions)
-    got = to_trace_units(env, {k: np.asarray(v) for k, v in view(env, post, ts).items()})
-    exp = expected_rows(d, post_rows, t_m)
-    exp, got = ({k: _as_el(v, (E, L)) for k, v in x.items()} for x in (exp, got))
-    ok, first = compare_fields(exp, got, valid, atol, mode="one-step")
+    tm_rows = rows.T  # [L, E] time-major
+    pre, pt = state_from_rows(env, d, tm_rows.ravel() - 1, t_m)
+    to_lel = lambda x: np.reshape(x, (L, E, *np.shape(x)[1:]))
+    pre = jax.tree_util.tree_map(to_lel, pre)
+    keys = _keys(env, d, tm_rows.ravel())
+    actions = d["action_in"][tm_rows].astype(np.int32)  # [L, E, n]
+    reset_view, outs = _replay_fn(env, E, L)(pre, keys, actions)
+    outs = {k: np.swapaxes(np.asarray(v), 0, 1) for k, v in outs.items()}  # [2E, L, ...]
+    exp = {k: _as_el(v, (E, L)) for k, v in expected_rows(d, rows.ravel(), t_m).items()}
+
+    got = to_trace_units(env, {k: v[:E] for k, v in outs.items()})
+    ok_step, first_step = compare_fields(exp, got, valid, atol, mode="one-step")
     if env.exact_motion:  # a pre-state off the motion graph cannot be replayed exactly
-        off = _as_el((pt < 0).any(-1), (E, L)) & valid
-        ok &= ~off
+        off = (pt < 0).any(-1).reshape(L, E).T & valid
+        ok_step &= ~off
         for e, t in np.argwhere(off)[:1]:
-            cand = Mismatch(int(e), int(t) + 1, "rb_xy (pre-state not on the motion graph)", "on graph", "off", "one-step")
-            first = cand if first is None or (cand.episode, cand.step) < (first.episode, first.step) else first
-    return ok, first
+            cand = Mismatch(int(e), int(t), "rb_xy (pre-state not on the motion graph)", "on graph", "off", "one-step")
+            first_step = cand if first_step is None or (e, t) < (first_step.episode, first_step.step) else first_step
 
-
-def _rollout(env: WarehouseEnv, d, t_m, atol):
-    offsets, valid, rows = _episode_rows(d)
-    E, L = valid.shape
-    reset_state, reset_ts = env.reset(jax.random.key(0))
+    got = to_trace_units(env, {k: v[E:] for k, v in outs.items()})
+    ok_roll, first_roll = compare_fields(exp, got, valid, atol, mode="rollout")
+    # Report trace steps (transition index + 1; the reset row is step 0).
+    first_step, first_roll = (None if m is None else dataclasses.replace(m, step=m.step + 1)
+                              for m in (first_step, first_roll))
     # Reset rows must equal our reset.
     reset_got = to_trace_units(env, {k: np.broadcast_to(np.asarray(v), (E,) + np.shape(v))[:, None]
-                                     for k, v in view(env, reset_state, reset_ts).items()})
+                                     for k, v in reset_view.items()})
     reset_exp = {k: v[:, None] for k, v in expected_rows(d, offsets[:-1], t_m).items()}
     reset_exp["reward"] = np.zeros_like(reset_exp["reward"])  # reset rows carry no step result
     reset_exp["cur_mac"] = np.full_like(reset_exp["cur_mac"], -1)
     reset_ok, reset_first = compare_fields(reset_exp, reset_got, np.ones((E, 1), bool), atol, mode="reset")
-
-    actions = jnp.asarray(d["action_in"][rows], jnp.int32)  # [E, L, n]
-    injected = isinstance(env, InjectedNoiseEnv)
-    noise = noise_from_rows(d, rows.ravel())
-    noise = jax.tree_util.tree_map(lambda x: x.reshape(E, L, *x.shape[1:]), noise)
-
-    def episode(acts, noise_e):
-        def body(state, inp):
-            a, nz, t = inp
-            junk = jnp.where(state.mac_done, a, -1)  # busy agents' entries must be ignored
-            key = nz if injected else jax.random.fold_in(jax.random.key(0), t)
-            state, ts = env.step(key, state, junk)
-            return state, view(env, state, ts)
-
-        _, outs = jax.lax.scan(body, reset_state, (acts, noise_e, jnp.arange(L)))
-        return outs
-
-    outs = jax.jit(jax.vmap(episode))(actions, noise)
-    got = to_trace_units(env, {k: np.asarray(v) for k, v in outs.items()})
-    exp = {k: _as_el(v, (E, L)) for k, v in expected_rows(d, rows.ravel(), t_m).items()}
-    ok, first = compare_fields(exp, got, valid, atol, mode="rollout")
     for e in np.flatnonzero(~reset_ok[:, 0]):
-        ok[e] = False
-        if first is None or first.episode > e:
-            first = reset_first
-    return ok, first
+        ok_roll[e] = False
+        if first_roll is None or first_roll.episode > e:
+            first_roll = reset_first
+    return ok_step, first_step, ok_roll, first_roll
 
 
 def check(path: str, d: Mapping[str, np.ndarray]) -> FileReport:
@@ -262,8 +293,7 @@ def check(path: str, d: Mapping[str, np.ndarray]) -> FileReport:
     env = env_for_trace(meta)
     atol = ATOL if env.exact_motion else ATOL_NOISE
     t_m = _expected_t_m(d)
-    ok_step, first_step = _one_step(env, d, t_m, atol)
-    ok_roll, first_roll = _rollout(env, d, t_m, atol)
+    ok_step, first_step, ok_roll, first_roll = _replay(env, d, t_m, atol)
     _, valid, _ = _episode_rows(d)
     firsts = [m for m in (first_step, first_roll) if m is not None]
     first = min(firsts, key=lambda m: (m.episode, m.step)) if firsts else None

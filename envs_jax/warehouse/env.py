@@ -337,5 +337,5 @@ class InjectedNoiseEnv(WarehouseEnv):
 
     def _core_step(self, key, core, actions, free, mac) -> CoreStep:
         if not isinstance(key, Noise):
-            raise ValueError(f"{self.spec.name}: InjectedNoiseEnv.step expects a Noise, got {type(key).__name__}")
+            raise TypeError(f"{self.spec.name}: InjectedNoiseEnv.step expects a Noise, got {type(key).__name__}")
         return self.transition(core, actions, free, key)

@@ -71,46 +71,51 @@ def _reference_step(p: np.ndarray, q: np.ndarray) -> tuple[int, np.ndarray]:
     return d_cents, np.array([p[0] + (speed / d * dx + 0.0), p[1] + (speed / d * dy + 0.0)])
 
 
+def _robot_graph(waypoints: list[np.ndarray], start: np.ndarray):
+    """Points reachable by one robot and its edges ``{(point, k): (next point, d_cents)}``.
+
+    Points are deduplicated by exact coordinates (D/E robot 1 starts on TRW)."""
+    points: list[np.ndarray] = []
+    index: dict[bytes, int] = {}
+
+    def point_id(xy: np.ndarray) -> int:
+        key = xy.tobytes()
+        if key not in index:
+            index[key] = len(points)
+            points.append(xy)
+        return index[key]
+
+    for w in waypoints:
+        point_id(w)
+    start_id = point_id(start)
+    edges: dict[tuple[int, int], tuple[int, int]] = {}
+    for origin in range(len(points)):  # the waypoints and the start point
+        for k, q in enumerate(waypoints):
+            p = origin
+            while (p, k) not in edges:
+                d_cents, xy = _reference_step(points[p], q)
+                nxt = k if d_cents <= SPEED_CENTS else point_id(xy)
+                edges[(p, k)] = (nxt, d_cents)
+                if nxt == k:
+                    break
+                p = nxt
+    return points, edges, start_id
+
+
 def build_motion_graph(layout: Layout) -> MotionGraph:
     """Enumerate every position a noiseless robot can reach (a few hundred per robot)."""
     n_t = layout.n_robots
-    per_robot = []
-    for i in range(n_t):
-        wps = [np.array(w, np.float64) for w in layout.waypoints(i)]
-        n_w = len(wps)
-        points: list[np.ndarray] = []
-        index: dict[bytes, int] = {}
-
-        def point_id(xy: np.ndarray) -> int:
-            key = xy.tobytes()
-            if key not in index:
-                index[key] = len(points)
-                points.append(xy)
-            return index[key]
-
-        for w in wps:
-            point_id(w)
-        start = point_id(np.array(layout.starts[i], np.float64))  # D/E robot 1 starts on TRW
-        edges: dict[tuple[int, int], tuple[int, int]] = {}
-        for origin in range(len(points)):  # waypoints and the start point
-            for k in range(n_w):
-                p = origin
-                while (p, k) not in edges:
-                    d_cents, xy = _reference_step(points[p], wps[k])
-                    nxt = k if d_cents <= SPEED_CENTS else point_id(xy)
-                    edges[(p, k)] = (nxt, d_cents)
-                    if nxt == k:
-                        break
-                    p = nxt
-        per_robot.append((points, edges, start, n_w))
-
-    n_p = max(len(r[0]) for r in per_robot)
-    n_w = per_robot[0][3]
+    per_robot = [
+        _robot_graph([np.array(w, np.float64) for w in layout.waypoints(i)], np.array(layout.starts[i], np.float64))
+        for i in range(n_t)
+    ]
+    n_p = max(len(points) for points, _, _ in per_robot)
+    n_w = len(layout.waypoints(0))
     xy64 = np.zeros((n_t, n_p, 2))
     nxt = np.tile(np.arange(n_p, dtype=np.int32)[None, :, None], (n_t, 1, n_w))
     dist = np.full((n_t, n_p, n_w), UNREACHABLE, np.int32)
     at_table = np.zeros((n_t, n_p), bool)
-    for i, (points, edges, _, _) in enumerate(per_robot):
+    for i, (points, edges, _) in enumerate(per_robot):
         xy64[i, : len(points)] = np.stack(points)
         for (p, k), (q, d) in edges.items():
             nxt[i, p, k], dist[i, p, k] = q, d
@@ -121,8 +126,8 @@ def build_motion_graph(layout: Layout) -> MotionGraph:
         next=nxt,
         dist_cents=dist,
         at_table=at_table,
-        start=np.array([r[2] for r in per_robot], np.int32),
-        n_points=np.array([len(r[0]) for r in per_robot], np.int32),
+        start=np.array([s for _, _, s in per_robot], np.int32),
+        n_points=np.array([len(points) for points, _, _ in per_robot], np.int32),
     )
 
 

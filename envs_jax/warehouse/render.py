@@ -19,8 +19,8 @@ def render_text(env, state) -> str:
     grid = [["." for _ in range(cols)] for _ in range(rows)]
 
     def put(xy, ch):
-        c = int(round(float(xy[0]) / _CELL))
-        r = rows - 1 - int(round(float(xy[1]) / _CELL))
+        c = round(float(xy[0]) / _CELL)
+        r = rows - 1 - round(float(xy[1]) / _CELL)
         if 0 <= r < rows and 0 <= c < cols:
             grid[r][c] = ch
 
@@ -37,8 +37,11 @@ def render_text(env, state) -> str:
     names = env.spec.action_names
     mac, free = np.asarray(state.mac), np.asarray(state.mac_done)
     wp_names = [f"W{h}" for h in range(n_h)] + ["TR", "table"]
-    lines = [f"{env.spec.name} (paper {lay.paper_name})  t={int(state.t)}  "
-             f"work areas A..{chr(ord('A') + n_h - 1)}, T tool room, t tables, F manipulator, digits robots"]
+    header = (
+        f"{env.spec.name} (paper {lay.paper_name})  t={int(state.t)}  "
+        f"work areas A..{chr(ord('A') + n_h - 1)}, T tool room, t tables, F manipulator, digits robots"
+    )
+    lines = [header]
     lines += ["".join(row) for row in grid]
     for i in range(n_t):
         act = names[i][mac[i]] if mac[i] >= 0 else "-"
