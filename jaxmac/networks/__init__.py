@@ -1,0 +1,77 @@
+"""ToMacVF networks: temporal agent networks (D2, D3), ATPG (D4, D5), mixers (D6, D19) and the
+conditional greedy action (D9). See each submodule's docstring for shapes.
+
+Typical training-side use on a batch of episode slots (leaves ``[B, H, ...]``, rows ``T = H + 1``)::
+
+    inputs, tau = slot_inputs(slots)                                   # NetInputs [B, T, ...], tau [B, T, n]
+    q, _, _ = agent_net.apply(agent_params, inputs, initial_carry(agent_cfg, (B,)), tau)  # [B, T, n, A]
+    weights, _ = mixer.apply(mixer_params, slots.decode_state(), inputs)                 # MixWeights [B, T]
+    q_tot = mix(weights, gather_q(q, actions))                                          # [B, T]
+"""
+
+from jaxmac.networks.agent import (
+    MASK_VALUE,
+    AgentNetConfig,
+    GRUTorso,
+    QHead,
+    TemporalAgentNet,
+    agent_features,
+    dummy_inputs,
+    init_agent_params,
+    initial_carry,
+    mask_unavailable,
+    masked_argmax,
+)
+from jaxmac.networks.atpg import (
+    ATPG,
+    AgentAttention,
+    ATPGConfig,
+    ATPGOutput,
+    TemporalSelfAttention,
+    temporal_mask,
+)
+from jaxmac.networks.conditional import conditional_greedy, gather_q
+from jaxmac.networks.inputs import NetInputs, slot_inputs, timestep_inputs
+from jaxmac.networks.mixers import (
+    MIXER_KINDS,
+    HyperMLP,
+    Mixer,
+    MixerConfig,
+    MixWeights,
+    init_mixer_params,
+    mix,
+    take_rows,
+)
+
+__all__ = [
+    "ATPG",
+    "MASK_VALUE",
+    "MIXER_KINDS",
+    "ATPGConfig",
+    "ATPGOutput",
+    "AgentAttention",
+    "AgentNetConfig",
+    "GRUTorso",
+    "HyperMLP",
+    "MixWeights",
+    "Mixer",
+    "MixerConfig",
+    "NetInputs",
+    "QHead",
+    "TemporalAgentNet",
+    "TemporalSelfAttention",
+    "agent_features",
+    "conditional_greedy",
+    "dummy_inputs",
+    "gather_q",
+    "init_agent_params",
+    "init_mixer_params",
+    "initial_carry",
+    "mask_unavailable",
+    "masked_argmax",
+    "mix",
+    "slot_inputs",
+    "take_rows",
+    "temporal_mask",
+    "timestep_inputs",
+]

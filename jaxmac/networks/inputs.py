@@ -1,0 +1,106 @@
+"""What the ToMacVF networks read at one primitive step, and builders from slots and timesteps.
+
+Both the temporal agent network (D2) and ATPG (D4) read, for every agent at row ``t`` (what the
+agents saw before step ``t``; row 0 is the reset), the observation at ``t`` and the macro-action
+*in force before the decision at t* (the one executed during step ``t-1``) with its progress::
+
+    obs       f32[..., T, n, O]   ô_t (padded to O; obs_real by default, D1)
+    t         i32[..., T]         absolute time of the row (PE(t))
+    prev_t    i32[..., T]         time of the previous action's step (PE(t-1)); t-1 on a full episode
+    prev_mac  i32[..., T, n]      m_{t-1}; -1 where there is none (t = 0): its whole block is zeroed
+    prev_t_m  i32[..., T, n]      t_m(t-1), the progress of m_{t-1} during step t-1
+    reset     bool[..., T]        episode start: the GRU carry is zeroed before this row
+
+For the single-step apply used by the rollout the same struct is used without the ``T`` axis.
+``prev_t`` is separate from ``t`` so that squeezed sequences (Mac-JERT, D16) can pass the true times
+of their kept steps.
+"""
+
+from __future__ import annotations
+
+import chex
+import jax.numpy as jnp
+from flax import struct
+
+from jaxmac.episode import EpisodeSlot
+
+
+@struct.dataclass
+class NetInputs:
+    """Per-row network inputs (see the module docstring for shapes)."""
+
+    obs: chex.Array  # f32[..., T, n, O]
+    t: chex.Array  # i32[..., T]
+    prev_t: chex.Array  # i32[..., T]
+    prev_mac: chex.Array  # i32[..., T, n]
+    prev_t_m: chex.Array  # i32[..., T, n]
+    reset: chex.Array  # bool[..., T]
+
+    def add_time_axis(self) -> NetInputs:
+        """Step inputs (no T axis) -> a length-1 sequence."""
+        return NetInputs(
+            obs=self.obs[..., None, :, :], t=self.t[..., None], prev_t=self.prev_t[..., None],
+            prev_mac=self.prev_mac[..., None, :], prev_t_m=self.prev_t_m[..., None, :],
+            reset=self.reset[..., None],
+        )
+
+
+def slot_inputs(slot: EpisodeSlot, which: str = "real") -> tuple[NetInputs, chex.Array]:
+    """Inputs for every row ``0..H`` of an episode slot, and the progress τ to value at each row.
+
+    Args:
+      slot: an ``EpisodeSlot`` with any number of leading batch axes (leaves ``[..., H, ...]``).
+      which: 'real' (``obs_real``, ToMacVF, D1) or 'macro' (frozen ``obs_macro``).
+    Returns:
+      inputs: ``NetInputs`` with ``T = H + 1`` rows (``reset`` only at row 0).
+      tau: i32[..., H+1, n], progress of the macro-action each agent executes from row r on:
+        0 where the agent is free at r (r = 0 or ``mac_done[r-1]``), else ``t_m[r-1] + 1``.
+        Equals ``slot.t_m[r]`` on valid steps, and ``MicroView.boot_t_m`` / ``MacroView.boot_t_m``
+        at bootstrap rows (row ``H`` included), so one head evaluation per row serves the chosen
+        action, the double-Q argmax of free agents (τ = 0) and the pinned busy agents (D9, D10).
+    """
+    if which not in ("real", "macro"):
+        raise ValueError(f"slot_inputs: which={which!r}; valid choices: ['macro', 'real']")
+    obs = slot.decode_obs(which)  # [..., H+1, n, O]
+    batch = slot.reward.shape[:-1]
+    h, n = slot.mac.shape[-2:]
+    t = jnp.broadcast_to(jnp.arange(h + 1, dtype=jnp.int32), batch + (h + 1,))
+    first = lambda fill: jnp.full(batch + (1, n), fill, jnp.int32)
+    prev_mac = jnp.concatenate([first(-1), slot.mac], axis=-2)
+    prev_t_m = jnp.concatenate([first(0), slot.t_m], axis=-2)
+    tau = jnp.concatenate([first(0), jnp.where(slot.mac_done, 0, slot.t_m + 1)], axis=-2)
+    inputs = NetInputs(obs=obs, t=t, prev_t=t - 1, prev_mac=prev_mac, prev_t_m=prev_t_m, reset=t == 0)
+    return inputs, tau.astype(jnp.int32)
+
+
+def timestep_inputs(ts) -> NetInputs:
+    """Step inputs (no T axis) from an ``envs_jax.TimeStep`` (any leading batch axes, e.g. ``[E]``).
+
+    ``ts.mac``/``ts.t_m`` are the macro-action executed during the step that produced ``ts`` and its
+    progress, i.e. ``m_{t-1}``/``t_m(t-1)`` for the row ``t = ts.t``; at a reset ``ts.t == 0`` (the
+    GRU carry is zeroed) and ``ts.mac == -1``. Uses ``obs_real`` (D1). When acting, value the
+    free agents' choices with τ = 0 (D17).
+    """
+    t = jnp.asarray(ts.t, jnp.int32)
+    return NetInputs(
+        obs=jnp.asarray(ts.obs_real, jnp.float32), t=t, prev_t=t - 1,
+        prev_mac=jnp.asarray(ts.mac, jnp.int32), prev_t_m=jnp.asarray(ts.t_m, jnp.int32), reset=t == 0,
+    )
+
+
+def validate_inputs(inputs: NetInputs, num_agents: int, obs_dim: int, where: str) -> None:
+    """Shape check of sequence inputs (``T`` axis present), raising ValueError naming the field."""
+    lead = inputs.t.shape  # [..., T]
+    want = {
+        "obs": lead + (num_agents, obs_dim), "t": lead, "prev_t": lead, "prev_mac": lead + (num_agents,),
+        "prev_t_m": lead + (num_agents,), "reset": lead,
+    }
+    if len(lead) < 1:
+        raise ValueError(f"{where}: inputs.t has shape {lead}; expected [..., T] (use step() for one step)")
+    for name, shape in want.items():
+        got = tuple(getattr(inputs, name).shape)
+        if got != shape:
+            raise ValueError(
+                f"{where}: inputs.{name} has shape {got}, expected {shape} "
+                f"(leading [..., T] = {lead}, n = {num_agents}, O = {obs_dim})"
+            )
