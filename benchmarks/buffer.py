@@ -27,7 +27,7 @@ import jax
 import numpy as np
 
 import envs_jax
-from jaxmac import episode, ring, rollout, views
+from jaxmac import collect, episode, ring, views
 
 
 def nbytes(tree) -> int:
@@ -56,7 +56,8 @@ def bench_env(name: str, capacity: int, e: int, b: int, n_step: int, repeats: in
         return None
     config = episode.SlotConfig.from_spec(env.spec)
     keys = jax.random.split(jax.random.key(0), e)
-    reset_ts, traj = jax.jit(jax.vmap(lambda k: rollout.random_episode(env, k)))(keys)
+    init_carry, act = collect.random_policy()
+    reset_ts, traj, _ = jax.jit(jax.vmap(lambda k: collect.run_episode(env, act, init_carry, None, k, 0.0)))(keys)
     write = jax.vmap(functools.partial(episode.write_episode, config))
 
     # storage loss on what the env actually emits

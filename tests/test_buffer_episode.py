@@ -9,7 +9,7 @@ import pytest
 from _buffer_fixtures import config_for, synthetic_rollout
 
 import envs_jax
-from jaxmac import episode, rollout, views
+from jaxmac import collect, episode, views
 from jaxmac.episode import ObsCodec, SlotConfig
 
 
@@ -18,13 +18,15 @@ def bp():
     env = envs_jax.make("boxpushing-6x6")
     config = SlotConfig.from_spec(env.spec)
 
-    def collect(key):
-        reset_ts, traj = rollout.random_episode(env, key)
+    init_carry, act = collect.random_policy()
+
+    def rollout_and_write(key):
+        reset_ts, traj, _ = collect.run_episode(env, act, init_carry, None, key, 0.0)
         return reset_ts, traj, episode.write_episode(config, reset_ts, traj)
 
     # two seeds: vmapped writing must equal writing each episode alone
     keys = jax.random.split(jax.random.key(3), 2)
-    reset_ts, traj, slots = jax.jit(jax.vmap(collect))(keys)
+    reset_ts, traj, slots = jax.jit(jax.vmap(rollout_and_write))(keys)
     first = lambda tree: jax.tree_util.tree_map(lambda x: x[0], tree)
     single = jax.jit(functools.partial(episode.write_episode, config))(first(reset_ts), first(traj))
     return env, config, reset_ts, traj, slots, single
