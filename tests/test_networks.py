@@ -32,6 +32,7 @@ from jaxmac.networks import (
     init_agent_params,
     init_mixer_params,
     initial_carry,
+    jert_inputs,
     mask_unavailable,
     masked_argmax,
     mix,
@@ -409,9 +410,11 @@ def test_slot_and_timestep_inputs_agree_with_the_views():
     def build(reset_ts, traj):
         slot = episode.write_episode(cfg, reset_ts, traj)
         batched = jax.tree_util.tree_map(lambda x: jnp.stack([x, x]), slot)
-        return slot, slot_inputs(slot), views.micro_view(slot, 1), slot_inputs(batched, "macro")
+        jv = views.jert_view(slot)
+        return (slot, slot_inputs(slot), views.micro_view(slot, 1), slot_inputs(batched, "macro"), jv,
+                jert_inputs(slot, jv), jert_inputs(batched, views.jert_view(batched)))
 
-    slot, (inputs, tau), mv, (inputs2, tau2) = build(reset_ts, traj)
+    slot, (inputs, tau), mv, (inputs2, tau2), jv, (ji, jtau), (ji2, _) = build(reset_ts, traj)
     assert inputs.obs.shape == (h + 1, n, O) and tau.shape == (h + 1, n)
     np.testing.assert_array_equal(inputs.obs[:8], info["obs_real"][:8])  # rows 0..length
     np.testing.assert_array_equal(inputs.reset, np.arange(h + 1) == 0)
@@ -431,6 +434,15 @@ def test_slot_and_timestep_inputs_agree_with_the_views():
     assert inputs2.prev_mac.shape == (2, h + 1, n) and tau2.shape == (2, h + 1, n)
     np.testing.assert_array_equal(inputs2.obs[1, :8], info["obs_macro"][:8])
     np.testing.assert_array_equal(tau2[1], tau)
+    # Mac-JERT (D16): entry k is decision row start[k]; its inputs are that row's, from obs_macro
+    m = np.asarray(jv.mask)
+    start = np.asarray(jv.start)[m]
+    assert m.sum() >= 2 and start[0] == 0
+    for name in ("obs", "t", "prev_t", "prev_mac", "prev_t_m"):
+        np.testing.assert_array_equal(getattr(ji, name)[m], getattr(inputs2, name)[0][start], err_msg=name)
+    np.testing.assert_array_equal(jtau[m], np.asarray(tau)[start])
+    np.testing.assert_array_equal(ji.reset, np.arange(h) == 0)
+    np.testing.assert_array_equal(ji2.prev_mac[1], ji.prev_mac)
 
 
 def test_take_rows_and_gather_q():

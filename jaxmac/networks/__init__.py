@@ -31,7 +31,7 @@ from jaxmac.networks.atpg import (
     temporal_mask,
 )
 from jaxmac.networks.conditional import conditional_greedy, gather_q
-from jaxmac.networks.inputs import NetInputs, slot_inputs, timestep_inputs
+from jaxmac.networks.inputs import NetInputs, jert_inputs, slot_inputs, timestep_inputs
 from jaxmac.networks.mixers import (
     MIXER_KINDS,
     HyperMLP,
@@ -67,6 +67,7 @@ __all__ = [
     "init_agent_params",
     "init_mixer_params",
     "initial_carry",
+    "jert_inputs",
     "mask_unavailable",
     "masked_argmax",
     "mix",

@@ -19,6 +19,7 @@ of their kept steps.
 from __future__ import annotations
 
 import chex
+import jax
 import jax.numpy as jnp
 from flax import struct
 
@@ -71,6 +72,40 @@ def slot_inputs(slot: EpisodeSlot, which: str = "real") -> tuple[NetInputs, chex
     tau = jnp.concatenate([first(0), jnp.where(slot.mac_done, 0, slot.t_m + 1)], axis=-2)
     inputs = NetInputs(obs=obs, t=t, prev_t=t - 1, prev_mac=prev_mac, prev_t_m=prev_t_m, reset=t == 0)
     return inputs, tau.astype(jnp.int32)
+
+
+def jert_inputs(slot: EpisodeSlot, jert) -> tuple[NetInputs, chex.Array]:
+    """Inputs of the squeezed Mac-JERT sequence (D16): one entry per kept step of a ``JertView``.
+
+    Entry ``k`` is the decision row ``jert.start[k]`` (frozen ``obs_macro``, true time ``jert.t``);
+    its previous macro-action is the one executed during step ``start[k] - 1`` (= the previous kept
+    step), with that step's true time and progress. ``reset`` only at entry 0; padded entries
+    (``jert.mask`` False) come after the real ones and carry no previous action.
+
+    Args:
+      slot: the ``EpisodeSlot`` the view was computed from (any leading batch axes).
+      jert: ``views.jert_view(slot)`` (leaves ``[..., H, ...]``).
+    Returns:
+      inputs: ``NetInputs`` with ``T = H`` entries.
+      tau: i32[..., H, n] progress at each decision row (``jert.t_m``; 0 for free agents).
+    """
+
+    def one(mac, t_m, start, mask):
+        has_prev = jnp.logical_and(start >= 1, mask)
+        idx = jnp.maximum(start - 1, 0)
+        prev_mac = jnp.where(has_prev[:, None], mac[idx], -1)
+        prev_t_m = jnp.where(has_prev[:, None], t_m[idx], 0)
+        return prev_mac, prev_t_m
+
+    fn = one
+    for _ in range(slot.reward.ndim - 1):
+        fn = jax.vmap(fn)
+    prev_mac, prev_t_m = fn(slot.mac, slot.t_m, jert.start, jert.mask)
+    h = jert.t.shape[-1]
+    reset = jnp.broadcast_to(jnp.arange(h) == 0, jert.t.shape)
+    inputs = NetInputs(obs=jert.obs.astype(jnp.float32), t=jert.t.astype(jnp.int32), prev_t=jert.t - 1,
+                       prev_mac=prev_mac.astype(jnp.int32), prev_t_m=prev_t_m.astype(jnp.int32), reset=reset)
+    return inputs, jert.t_m.astype(jnp.int32)
 
 
 def timestep_inputs(ts) -> NetInputs:
