@@ -121,12 +121,12 @@ class TemporalSelfAttention(nn.Module):
     @nn.compact
     def __call__(self, tok):
         d = self.embed
-        q, k, v = (nn.Dense(d, use_bias=False, name=name)(tok) for name in ("query", "key", "value"))
-        logits = jnp.einsum("...tnd,...snd->...nts", q, k) / np.sqrt(d)  # [..., n, T, T]
-        mask = temporal_mask(tok.shape[-3], self.window)
+        x = jnp.swapaxes(tok, -2, -3)  # [..., n, T, d]: plain batched matmuls (faster on CPU than einsum)
+        q, k, v = (nn.Dense(d, use_bias=False, name=name)(x) for name in ("query", "key", "value"))
+        logits = (q @ jnp.swapaxes(k, -1, -2)) / np.sqrt(d)  # [..., n, T, T]
+        mask = temporal_mask(x.shape[-2], self.window)
         logits = jnp.where(mask, logits, -jnp.inf)  # the diagonal is always allowed: no empty row
-        w = jax.nn.softmax(logits, axis=-1)
-        return jnp.einsum("...nts,...snd->...tnd", w, v)
+        return jnp.swapaxes(jax.nn.softmax(logits, axis=-1) @ v, -2, -3)
 
 
 class AgentAttention(nn.Module):
