@@ -1,10 +1,10 @@
 """Trace adapter for Overcooked (format: ``shared/reference/overcooked/TRACES.md``).
 
-Two replays, each one compiled call:
+Two replays, run together as lanes of one compiled ``vmap(scan(step))`` (see ``replayer``):
 
-* one-step: every transition from its recorded pre-state (vmapped over all transitions);
-* rollout: every episode from reset, fed only ``t_mac_in`` (vmapped over episodes, scanned over
-  steps), which also checks that inputs of running agents are ignored.
+* one-step: every transition from its recorded pre-state;
+* rollout: every episode from reset, fed only ``t_mac_in``, which also checks that inputs of
+  running agents are ignored (the ``junk`` episodes send random indices for them).
 
 Every recorded field is compared: world state, grid, beliefs and belief maps, macro bookkeeping,
 observations (cached and fresh), global state, primitive actions, reward, done, truncation.
@@ -12,6 +12,7 @@ observations (cached and fresh), global state, primitive actions, reward, done, 
 
 from __future__ import annotations
 
+import functools
 import json
 from typing import Mapping
 
@@ -33,10 +34,35 @@ def _detects(data: Mapping[str, np.ndarray]) -> bool:
     return "s_pomap" in data and "s_knife_hold" in data and "meta_json" in data
 
 
-def _make_env(meta: dict):
+@functools.lru_cache(maxsize=None)
+def replayer(map_type: str, horizon: int):
+    """(env, jitted replay) for one map, cached so that re-checking a file does not recompile.
+
+    ``replay(pre, actions, one_step)`` runs lanes [M] of ``L`` steps each: a lane with
+    ``one_step`` steps from the recorded pre-state ``pre[m, t]`` at every step, the others carry
+    their own state from reset (a rollout fed only the recorded inputs). Both kinds share one
+    compiled scan. Also returns our reset state's fields."""
     from envs_jax.registry import make
 
-    return make(f"overcooked-{meta['map_type']}", horizon=int(meta["horizon"]))
+    env = make(f"overcooked-{map_type}", horizon=horizon)
+    key = jax.random.key(0)
+
+    @jax.jit
+    def replay(pre: EnvState, actions: jax.Array, one_step: jax.Array):
+        s0, ts0 = env.reset(key)
+
+        def lane(pre_m, actions_m, one_step_m):
+            def body(carry, inp):
+                pre_t, a = inp
+                state = jax.tree_util.tree_map(lambda r, c: jnp.where(one_step_m, r, c), pre_t, carry)
+                nxt, ts = env.step(key, state, a)
+                return nxt, _transition(env, nxt, ts)
+
+            return jax.lax.scan(body, s0, (pre_m, actions_m))[1]
+
+        return _observed(env, s0, ts0), jax.vmap(lane)(pre, actions, one_step)
+
+    return env, replay
 
 
 def trace_state(data: Mapping[str, np.ndarray], rows: np.ndarray, t: np.ndarray) -> EnvState:
@@ -130,7 +156,7 @@ def _to_episodes(flat: dict, ep: np.ndarray, step: np.ndarray, n_ep: int, max_le
 
 def check(path: str, data: Mapping[str, np.ndarray]) -> FileReport:
     meta = json.loads(str(data["meta_json"]))
-    env = _make_env(meta)
+    env, replay = replayer(str(meta["map_type"]), int(meta["horizon"]))
     ep_len = data["ep_len"].astype(np.int64)
     n_ep, max_len = len(ep_len), int(ep_len.max())
     ep = np.repeat(np.arange(n_ep), ep_len)
@@ -139,45 +165,26 @@ def check(path: str, data: Mapping[str, np.ndarray]) -> FileReport:
     rows = data["ep_state_start"][ep] + step
     valid = np.arange(max_len)[None, :] < ep_len[:, None]
     expected = _to_episodes(_expected(data, meta, rows + 1, step, ep, trans), ep, step, n_ep, max_len)
-    actions = jnp.asarray(data["t_mac_in"][trans], jnp.int32)
-    key = jax.random.key(0)
 
-    # One-step replay from every recorded pre-state.
-    @jax.jit
-    def one_step(states, acts):
-        def f(s, a):
-            nxt, ts = env.step(key, s, a)
-            return _transition(env, nxt, ts)
+    # Pre-states and inputs laid out [episode, step]; padding repeats the episode's first state.
+    pre_rows = np.repeat(data["ep_state_start"][:, None], max_len, axis=1)
+    pre_rows[ep, step] = rows
+    pre = trace_state(data, pre_rows.reshape(-1), np.tile(np.arange(max_len), n_ep))
+    pre = jax.tree_util.tree_map(lambda x: x.reshape(n_ep, max_len, *x.shape[1:]), pre)
+    actions = np.zeros((n_ep, max_len, 3), np.int32)
+    actions[ep, step] = data["t_mac_in"][trans]
+    # Lanes 0..E-1: rollouts from reset; lanes E..2E-1: one-step replays from recorded states.
+    both = lambda x: jnp.concatenate([x, x])  # noqa: E731
+    one_step = np.repeat([False, True], n_ep)
+    got_reset, got = jax.device_get(replay(jax.tree_util.tree_map(both, pre), both(jnp.asarray(actions)), one_step))
+    ok_roll, first_roll = compare_fields(expected, {k: v[:n_ep] for k, v in got.items()}, valid, ATOL, mode="rollout")
+    ok_one, first = compare_fields(expected, {k: v[n_ep:] for k, v in got.items()}, valid, ATOL, mode="one-step")
 
-        return jax.vmap(f)(states, acts)
-
-    got = _to_episodes(jax.device_get(one_step(trace_state(data, rows, step), actions)), ep, step, n_ep, max_len)
-    ok_one, first = compare_fields(expected, got, valid, ATOL, mode="one-step")
-
-    # Rollout of every episode from reset, fed only the recorded joint inputs.
-    ep_actions = np.zeros((n_ep, max_len, 3), np.int32)
-    ep_actions[ep, step] = data["t_mac_in"][trans]
-
-    @jax.jit
-    def rollout(acts):
-        def episode(acts_e):
-            s0, ts0 = env.reset(key)
-
-            def body(s, a):
-                nxt, ts = env.step(key, s, a)
-                return nxt, _transition(env, nxt, ts)
-
-            return _observed(env, s0, ts0), jax.lax.scan(body, s0, acts_e)[1]
-
-        return jax.vmap(episode)(acts)
-
-    got_reset, got_roll = jax.device_get(rollout(jnp.asarray(ep_actions)))
-    ok_roll, first_roll = compare_fields(expected, got_roll, valid, ATOL, mode="rollout")
     # The reset state (state 0 of every episode) must match too; a mismatch there counts against step 0.
     reset_rows = data["ep_state_start"]
     exp_reset = _expected(data, meta, reset_rows, np.full(n_ep, -5), np.arange(n_ep), data["ep_step_start"])
     exp_reset = {k: v[:, None] for k, v in exp_reset.items() if k in STATE_FIELDS}
-    got_reset = {k: np.asarray(got_reset[k])[:, None] for k in exp_reset}
+    got_reset = {k: np.broadcast_to(np.asarray(got_reset[k]), (n_ep, *np.shape(got_reset[k])))[:, None] for k in exp_reset}
     ok_reset, first_reset = compare_fields(exp_reset, got_reset, np.ones((n_ep, 1), bool), ATOL, mode="reset")
     ok_roll[:, 0] &= ok_reset[:, 0]
 

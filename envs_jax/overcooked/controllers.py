@@ -41,8 +41,10 @@ _CELL_1_1 = np.array([1, 1], np.int32)
 _CELL_3_1 = np.array([3, 1], np.int32)
 _CELL_1_0 = np.array([1, 0], np.int32)
 _FLAT_2_1 = 2 * N + 1
+_TEAMMATES = np.array([[j for j in range(N_AGENTS) if j != i] for i in range(N_AGENTS)], np.int32)
 
-Planner = Callable[[chex.Array, chex.Array, chex.Array, chex.Array, chex.Array], chex.Array]
+# planner(passable bool[3, 49], agent bool[3, 49], s i32[3], t i32[3], enabled bool[3], mates i32[3, 2]) -> i32[3]
+Planner = Callable[..., chex.Array]
 
 
 def _knife_content(s: OvercookedState, cell: chex.Array):
@@ -62,7 +64,7 @@ def controllers(
     """Primitive actions of all agents (SPEC §8.2).
 
     Args: ``pm`` int32[3, 49] belief maps, ``mac`` int32[3] macro-actions being executed,
-    ``planner(passable, agent, s, t, enabled)`` vmapped over agents.
+    ``planner`` answers for the 3 agents at once (``plan_table.make_planner``).
     Returns (prim int32[3], done bool[3], chop_ctr int32[3]).
     """
     mac = jnp.clip(mac, 0, layout.num_actions - 1)
@@ -118,7 +120,8 @@ def controllers(
     )
 
     passable = (pm == FLOOR) | (pm == AGENT)
-    plan = planner(passable, pm == AGENT, flat(me), t_flat, needs_plan)
+    mates = flat(s.belief[rows[:, None], AGENT0_K + jnp.asarray(_TEAMMATES)])  # [3, 2]
+    plan = planner(passable, pm == AGENT, flat(me), t_flat, needs_plan, mates)
 
     # Rule 6.4 on arrival (adjacent before moving): the bump is the interaction, with exceptions.
     chopped_in_hand = (hold >= 0) & (hold < N_FOODS) & (s.chop[jnp.clip(hold, 0, N_FOODS - 1)] == 3)

@@ -22,7 +22,7 @@ import jax
 import jax.numpy as jnp
 
 from envs_jax.core import CoreStep, EnvSpec, EnvState, MacroEnv
-from envs_jax.overcooked import controllers, layouts, physics, planner, world
+from envs_jax.overcooked import controllers, layouts, physics, plan_table, planner, world
 from envs_jax.overcooked.world import OvercookedState
 
 
@@ -52,7 +52,7 @@ class OvercookedConfig:
 class Overcooked(MacroEnv[OvercookedState]):
     """Macro-action Overcooked on one map; build it with ``envs_jax.make("overcooked-A")``."""
 
-    def __init__(self, map_name: str, config: OvercookedConfig = OvercookedConfig()):
+    def __init__(self, map_name: str, config: OvercookedConfig = OvercookedConfig(), fast_planner: bool = True):
         name = f"overcooked-{map_name}"
         self.layout = layouts.build_layout(map_name)
         self.config = config
@@ -68,7 +68,10 @@ class Overcooked(MacroEnv[OvercookedState]):
             discount=config.discount,
             agent_names=tuple(f"agent{i + 1}" for i in range(n)),
         )
-        self._plan = jax.vmap(planner.plan_exact)
+        if fast_planner:
+            self._plan = plan_table.make_planner(plan_table.build_table(map_name), self.layout.floor)
+        else:  # the plain search for every agent (reference for tests)
+            self._plan = jax.vmap(lambda passable, agent, s, t, enabled, mates: planner.plan_exact(passable, agent, s, t, enabled))
 
     # --- MacroEnv hooks -----------------------------------------------------------------------
     def _core_reset(self, key: chex.PRNGKey) -> OvercookedState:

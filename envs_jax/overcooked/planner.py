@@ -38,6 +38,8 @@ EXPAND_PRIMS = (0, 2, 1, 3)
 
 _CX = np.arange(N_CELLS) // N
 _CY = np.arange(N_CELLS) % N
+_CELLS = np.arange(N_CELLS)
+_SLOTS = np.arange(HEAP_SLOTS)
 
 
 # A heap entry is one int32: key << 9 | cell << 3 | first, with key = 2 f + p (f = g + h ≤ 64).
@@ -63,22 +65,21 @@ def _precedes(a, b):
     return _key(a) <= _key(b)
 
 
-def _sift_up(heap, pos, item):
-    """Move ``item`` from slot ``pos`` towards the root past every parent it precedes (heapq
-    ``_siftdown``). Re-testing an unmoved slot gives the same answer, so a fixed number of masked
-    steps reproduces the loop with its ``break``."""
-    for _ in range(SIFT_STEPS):
+def _sift_up(heap, pos, item, enable):
+    """heapq ``_siftdown``: move ``item`` from slot ``pos`` towards the root past every parent it
+    precedes, then store it (all only if ``enable``). Re-testing an unmoved slot gives the same
+    answer, so a fixed number of masked steps reproduces the loop with its ``break``."""
+
+    def step(_, carry):
+        heap, pos = carry
         parent = jnp.maximum(pos - 1, 0) >> 1
         parent_item = heap[parent]
-        move = (pos > 0) & _precedes(item, parent_item)
-        heap = heap.at[pos].set(jnp.where(move, parent_item, heap[pos]))
-        pos = jnp.where(move, parent, pos)
-    return heap.at[pos].set(item)
+        move = enable & (pos > 0) & _precedes(item, parent_item)
+        heap = jnp.where(move & (_SLOTS == pos), parent_item, heap)
+        return heap, jnp.where(move, parent, pos)
 
-
-def _push(heap, size, item, enable):
-    new_heap = _sift_up(heap, size, item)
-    return jnp.where(enable, new_heap, heap), size + enable.astype(size.dtype)
+    heap, pos = jax.lax.fori_loop(0, SIFT_STEPS, step, (heap, pos))
+    return jnp.where(enable & (_SLOTS == pos), item, heap)
 
 
 def _pop(heap, size):
@@ -86,40 +87,42 @@ def _pop(heap, size):
     size = size - 1
     last = heap[size]
     root = heap[0]
+
     # Move the hole at the root down to a leaf, always promoting the child that precedes
     # (the left one unless the right one exists and the left does not precede it).
-    pos = jnp.zeros_like(size)
-    for _ in range(SIFT_STEPS):
+    def step(_, carry):
+        heap, pos = carry
         left = 2 * pos + 1
         right = left + 1
         left_item = heap[jnp.minimum(left, HEAP_SLOTS - 1)]
         right_item = heap[jnp.minimum(right, HEAP_SLOTS - 1)]
         use_right = (right < size) & ~_precedes(left_item, right_item)
-        child = jnp.where(use_right, right, left)
         move = left < size
-        heap = heap.at[pos].set(jnp.where(move, jnp.where(use_right, right_item, left_item), heap[pos]))
-        pos = jnp.where(move, child, pos)
+        heap = jnp.where(move & (_SLOTS == pos), jnp.where(use_right, right_item, left_item), heap)
+        return heap, jnp.where(move, jnp.where(use_right, right, left), pos)
+
+    heap, pos = jax.lax.fori_loop(0, SIFT_STEPS, step, (heap, jnp.zeros_like(size)))
     # Put the former last entry into the hole and sift it back up.
-    heap = _sift_up(heap, pos, last)
-    entry = jnp.where(size == 0, last, root)
-    return entry, heap, size
+    heap = _sift_up(heap, pos, last, True)
+    return jnp.where(size == 0, last, root), heap, size
 
 
-def plan_exact(
+def search(
     passable: jax.Array, agent: jax.Array, s: jax.Array, t: jax.Array, enabled: jax.Array | bool = True
-) -> jax.Array:
-    """First primitive move from ``s`` towards ``t`` exactly as the original planner (SPEC §7).
+) -> tuple[jax.Array, jax.Array]:
+    """The original planner's search (SPEC §7) from ``s`` towards ``t``.
 
-    ``enabled=False`` skips the search (returns 4 without iterating), for callers that plan for
-    every agent but need only some answers."""
+    Returns (first primitive move, bool[49] cells pushed on the heap). ``enabled=False`` skips the
+    search (returns 4 without iterating), for callers that plan for several agents but need only
+    some answers."""
     s = jnp.asarray(s, jnp.int32)
     t = jnp.asarray(t, jnp.int32)
     cx, cy = jnp.asarray(_CX, jnp.int32), jnp.asarray(_CY, jnp.int32)
     h = jnp.abs(cx - t // N) + jnp.abs(cy - t % N)  # i32[49] Manhattan heuristic
     # Each expansion can only generate the target or cells inside the grid (the start is a floor
     # cell and border cells are never passable), so no bounds checks are needed.
-    heap = jnp.zeros((HEAP_SLOTS,), jnp.int32).at[0].set(_pack(2 * h[s], s, NO_FIRST))
-    seen = jnp.zeros((N_CELLS,), bool).at[s].set(True)
+    heap = jnp.where(_SLOTS == 0, _pack(2 * h[s], s, NO_FIRST), 0)
+    seen = _CELLS == s
     skip = ~jnp.asarray(enabled, bool)
     init = (heap, jnp.ones((), jnp.int32), seen, skip, jnp.full((), 4, jnp.int32))
 
@@ -127,25 +130,37 @@ def plan_exact(
         _, size, _, found, _ = carry
         return ~found & (size > 0)
 
+    offsets, prims = jnp.asarray(EXPAND_OFFSETS), jnp.asarray(EXPAND_PRIMS)
+
     def body(carry):
         heap, size, seen, found, result = carry
         entry, heap, size = _pop(heap, size)
         cell, first = _cell(entry), _first(entry)
         g = (_key(entry) >> 1) - h[cell]
-        for off, prim in zip(EXPAND_OFFSETS, EXPAND_PRIMS):
-            n = cell + off
+
+        def expand(d, carry):  # neighbour d in the order right, left, down, up
+            heap, size, seen, found, result = carry
+            n = cell + offsets[d]
             fresh = ~found & ~seen[n]
-            first_n = jnp.where(first == NO_FIRST, prim, first)
+            first_n = jnp.where(first == NO_FIRST, prims[d], first)
             push = fresh & passable[n]
             key = 2 * (g + 1 + h[n]) + agent[n].astype(jnp.int32)
-            heap, size = _push(heap, size, _pack(key, n, first_n), push)
-            seen = seen.at[n].set(seen[n] | push)
+            heap = _sift_up(heap, size, _pack(key, n, first_n), push)
+            seen = seen | (push & (_CELLS == n))
             hit = fresh & (n == t)
-            result = jnp.where(hit, first_n, result)
-            found = found | hit
-        return heap, size, seen, found, result
+            return heap, size + push.astype(jnp.int32), seen, found | hit, jnp.where(hit, first_n, result)
 
-    return jax.lax.while_loop(cond, body, init)[4]
+        return jax.lax.fori_loop(0, len(EXPAND_OFFSETS), expand, (heap, size, seen, found, result))
+
+    _, _, seen, _, result = jax.lax.while_loop(cond, body, init)
+    return result, seen & (_CELLS != s)
+
+
+def plan_exact(
+    passable: jax.Array, agent: jax.Array, s: jax.Array, t: jax.Array, enabled: jax.Array | bool = True
+) -> jax.Array:
+    """First primitive move from ``s`` towards ``t`` exactly as the original planner (SPEC §7)."""
+    return search(passable, agent, s, t, enabled)[0]
 
 
 # ------------------------------------------------------------------------------------------

@@ -1,0 +1,195 @@
+"""Fast, exact planner: a per-map table of search answers plus the search as a fallback.
+
+The planner's input is a belief map, but on these maps a belief map can only differ from the
+static layout in two ways (SPEC §6): cells holding an agent (the own cell ``s`` and the believed
+cells ``a``, ``b`` of the two teammates; passable, ``p = 1``) and floor cells holding a *phantom*
+item (an item believed to lie on the floor; impassable). So the search is a function of
+``(s, t, {a, b}, blocked)``.
+
+``build_table`` runs the exact search (``planner.search``) once per ``(s, t, {a, b})`` with no
+blocked cell and stores its first move together with the set of cells it pushed. With blocked
+cells, the search takes exactly the same course as long as it never pushes a blocked cell, so a
+table answer is valid iff ``pushed ∩ blocked = ∅``; otherwise (rare: a phantom item on the
+search's frontier) we run the search itself. Under ``vmap`` the fallback searches are gathered into
+small chunks (``jax.custom_batching.custom_vmap``), so their cost does not scale with the batch.
+
+Building uses the fact that a teammate cell only matters if the search pushes it: answers without
+teammates, then with one, then the few pairs that still need their own search (about 1–2 s per
+map, once per process).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from envs_jax.overcooked import planner
+from envs_jax.overcooked.layouts import Layout, N, build_layout
+
+N_CELLS = N * N
+_BUILD_CHUNK = 8192
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class PlanTable:
+    """Planner answers for belief maps without phantom items (numpy, static).
+
+    ``floor_cells``  int32[F]      flat indices of the floor cells (F ≤ 25)
+    ``floor_index``  int32[49]     flat cell -> index into ``floor_cells`` or −1
+    ``entries``      int32[F*49*P] entry of (s, t, pair{a, b}): ``pushed_bits << 3 | first_move``,
+                                   pushed bits over floor indices, P = F (F + 1) / 2 unordered pairs
+    """
+
+    floor_cells: np.ndarray
+    floor_index: np.ndarray
+    entries: np.ndarray
+
+    @property
+    def n_floor(self) -> int:
+        return len(self.floor_cells)
+
+
+def pair_index(lo, hi, n_floor: int):
+    """Index of the unordered pair {lo, hi} (lo ≤ hi) among the F (F + 1) / 2 pairs."""
+    return lo * n_floor - lo * (lo - 1) // 2 + (hi - lo)
+
+
+@jax.jit
+def _search_chunk(passable, agent, s, t):
+    return jax.vmap(planner.search, in_axes=(None, 0, 0, 0))(passable, agent, s, t)
+
+
+def _run(floor49: np.ndarray, s: np.ndarray, t: np.ndarray, agents: np.ndarray):
+    """Exact searches for lanes (s, t, agent cells[..., k]); returns (first, pushed bool[49])."""
+    n = len(s)
+    firsts, pushed = [], []
+    for lo in range(0, n, _BUILD_CHUNK):
+        sl = slice(lo, min(n, lo + _BUILD_CHUNK))
+        m = sl.stop - sl.start
+        agent = np.zeros((_BUILD_CHUNK, N_CELLS), bool)
+        rows = np.arange(m)[:, None]
+        agent[rows, np.concatenate([s[sl, None], agents[sl]], axis=1)] = True
+        pad = lambda x: np.pad(x, (0, _BUILD_CHUNK - m))  # noqa: E731
+        f, p = _search_chunk(floor49, agent, pad(s[sl]), pad(t[sl]))
+        firsts.append(np.asarray(f)[:m])
+        pushed.append(np.asarray(p)[:m])
+    return np.concatenate(firsts), np.concatenate(pushed)
+
+
+@functools.lru_cache(maxsize=None)
+def build_table(map_name: str) -> PlanTable:
+    """Table of map ``map_name`` (cached per process)."""
+    layout = build_layout(map_name)
+    floor49 = layout.floor.reshape(-1)
+    cells = np.flatnonzero(floor49).astype(np.int32)
+    F = len(cells)
+    index = np.full(N_CELLS, -1, np.int32)
+    index[cells] = np.arange(F)
+    to_bits = lambda pushed: (pushed[..., cells].astype(np.int64) << np.arange(F)).sum(-1)  # noqa: E731
+
+    # No teammate on the search's way: (s, t).
+    si, t = (g.reshape(-1) for g in np.meshgrid(np.arange(F), np.arange(N_CELLS), indexing="ij"))
+    r0, p0 = _run(floor49, cells[si], t, np.zeros((len(si), 0), np.int32))
+    r0, p0 = r0.reshape(F, N_CELLS), p0[:, cells].reshape(F, N_CELLS, F)
+    # One teammate: (s, t, a).
+    si, t, ai = (g.reshape(-1) for g in np.meshgrid(np.arange(F), np.arange(N_CELLS), np.arange(F), indexing="ij"))
+    r1, p1 = _run(floor49, cells[si], t, cells[ai][:, None])
+    r1, p1 = r1.reshape(F, N_CELLS, F), p1[:, cells].reshape(F, N_CELLS, F, F)
+
+    # Every (s, t, {a, b}), a ≤ b: reuse the 0/1-teammate search when the other teammate is
+    # never pushed by it.
+    lo, hi = np.triu_indices(F)
+    si, t, pi = (g.reshape(-1) for g in np.meshgrid(np.arange(F), np.arange(N_CELLS), np.arange(len(lo)), indexing="ij"))
+    a, b = lo[pi], hi[pi]
+    in_a, in_b = p0[si, t, a], p0[si, t, b]
+    use0 = ~in_a & ~in_b
+    use_a = ~use0 & in_a & ((a == b) | ~p1[si, t, a, b])
+    use_b = ~use0 & ~use_a & in_b & ~p1[si, t, b, a]
+    first = np.where(use0, r0[si, t], np.where(use_a, r1[si, t, a], r1[si, t, b]))
+    bits0 = (p0.astype(np.int64) << np.arange(F)).sum(-1)  # [F, 49]
+    bits1 = (p1.astype(np.int64) << np.arange(F)).sum(-1)  # [F, 49, F]
+    bits = np.where(use0, bits0[si, t], np.where(use_a, bits1[si, t, a], bits1[si, t, b]))
+    # Pairs whose searches push both teammates: search them.
+    need = ~(use0 | use_a | use_b)
+    r2, p2 = _run(floor49, cells[si[need]], t[need], np.stack([cells[a[need]], cells[b[need]]], 1))
+    first[need] = r2
+    bits[need] = to_bits(p2)
+    entries = ((bits << 3) | first).astype(np.int32)
+    return PlanTable(floor_cells=cells, floor_index=index, entries=entries)
+
+
+def _chunk(lanes: int) -> int:
+    """Lanes searched together by the fallback: ~1.5% of the batch (phantom items on a search's
+    frontier are rarer than that), at least 4."""
+    return int(min(64, max(4, lanes // 64)))
+
+
+def make_planner(table: PlanTable, floor: np.ndarray):
+    """The controllers' planner: ``plan(passable, agent, s, t, enabled, mates)`` for the 3 agents.
+
+    Args (leading axis = agents): ``passable``/``agent`` bool[3, 49] from the belief maps,
+    ``s``/``t`` int32[3] flat cells, ``enabled`` bool[3] (who needs an answer), ``mates``
+    int32[3, 2] the teammates' believed cells. Returns int32[3] first moves, identical to
+    ``planner.plan_exact`` wherever ``enabled``.
+    """
+    entries = jnp.asarray(table.entries)
+    findex = jnp.asarray(table.floor_index)
+    cells = jnp.asarray(table.floor_cells)
+    n_floor = table.n_floor
+    n_pairs = n_floor * (n_floor + 1) // 2
+    bits = jnp.asarray(1 << np.arange(n_floor), jnp.int32)
+    del floor  # the table already encodes the layout
+
+    def lookup(passable, s, t, mates):
+        """Table answer and whether it is valid, for lanes [L]."""
+        si, a, b = findex[s], findex[mates[:, 0]], findex[mates[:, 1]]
+        lo, hi = jnp.minimum(a, b), jnp.maximum(a, b)
+        idx = (jnp.maximum(si, 0) * N_CELLS + t) * n_pairs + pair_index(jnp.maximum(lo, 0), jnp.maximum(hi, 0), n_floor)
+        entry = entries[idx]
+        blocked = jnp.sum(jnp.where(passable[:, cells], 0, bits), axis=-1)  # phantom items on the floor
+        ok = (si >= 0) & (lo >= 0) & ((entry >> 3) & blocked == 0)
+        return entry & 7, ok
+
+    def plan_lanes(passable, agent, s, t, enabled, mates):
+        first, ok = lookup(passable, s, t, mates)
+        need = enabled & ~ok
+        slow = jax.vmap(planner.plan_exact)(passable, agent, s, t, need)
+        return jnp.where(need, slow, first)
+
+    def plan_compact(passable, agent, s, t, enabled, mates):
+        """Like ``plan_lanes`` for many lanes, searching only the lanes that need it, in chunks."""
+        first, ok = lookup(passable, s, t, mates)
+        need = enabled & ~ok
+        lanes = s.shape[0]
+        chunk = _chunk(lanes)
+        n_need = jnp.sum(need)
+        order = jnp.nonzero(need, size=lanes + chunk, fill_value=lanes)[0]  # lanes needing a search first
+
+        def body(carry):
+            c, out = carry
+            sel = jax.lax.dynamic_slice(order, (c * chunk,), (chunk,))
+            take = lambda x: x.at[sel].get(mode="fill", fill_value=0)  # noqa: E731
+            res = jax.vmap(planner.plan_exact)(take(passable), take(agent), take(s), take(t), sel < lanes)
+            return c + 1, out.at[sel].set(res, mode="drop")
+
+        _, out = jax.lax.while_loop(lambda carry: carry[0] * chunk < n_need, body, (jnp.zeros((), jnp.int32), first))
+        return out
+
+    @jax.custom_batching.custom_vmap
+    def plan(passable, agent, s, t, enabled, mates):
+        return plan_lanes(passable, agent, s, t, enabled, mates)
+
+    @plan.def_vmap
+    def _plan_batched(axis_size, in_batched, passable, agent, s, t, enabled, mates):
+        args = [
+            x if batched else jnp.broadcast_to(x, (axis_size, *x.shape))
+            for x, batched in zip((passable, agent, s, t, enabled, mates), in_batched)
+        ]
+        lanes = [x.reshape(-1, *x.shape[2:]) for x in args]
+        return plan_compact(*lanes).reshape(axis_size, -1), True
+
+    return plan
