@@ -56,6 +56,7 @@ class TrainConfig:
     use_time_pe: bool = True  # D3 flag
     eval_every_episodes: int = 100  # D15
     eval_episodes: int = 10  # D15
+    horizon: int = 0  # env horizon override for smoke runs; 0 = the scenario's own
 
     def __post_init__(self):
         for name, choices in CHOICES.items():
@@ -76,8 +77,8 @@ class TrainConfig:
         if not 0.0 <= self.eps_end <= self.eps_start <= 1.0:
             raise ValueError(f"need 0 <= eps_end <= eps_start <= 1, got eps_start={self.eps_start}, "
                              f"eps_end={self.eps_end}")
-        if self.eps_decay_episodes < 0 or self.attn_window < 0:
-            raise ValueError("eps_decay_episodes and attn_window must be >= 0")
+        if self.eps_decay_episodes < 0 or self.attn_window < 0 or self.horizon < 0:
+            raise ValueError("eps_decay_episodes, attn_window and horizon must be >= 0")
         if not 0.0 <= self.attn_delta < 1.0:
             raise ValueError(f"attn_delta={self.attn_delta!r} must be in [0, 1)")
         if self.buffer_episodes < self.batch_size:
@@ -117,6 +118,14 @@ class TrainConfig:
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
+
+
+def make_env(config: TrainConfig):
+    """The scenario's env (with the ``horizon`` override if set)."""
+    import envs_jax
+
+    overrides = {"horizon": config.horizon} if config.horizon else {}
+    return envs_jax.make(config.scenario, **overrides)
 
 
 def _parse(key: str, raw: str, kind: type) -> Any:

@@ -46,11 +46,11 @@ def enable_compilation_cache(path: str | None = None) -> None:
 
 
 def _build(config: TrainConfig, rounds_per_chunk: int | None):
-    import envs_jax
     from jaxmac.algos import make_algorithm
+    from jaxmac.config import make_env
     from jaxmac.trainer import make_train
 
-    env = envs_jax.make(config.scenario)
+    env = make_env(config)
     return make_train(config, env, make_algorithm(config, env), rounds_per_chunk)
 
 

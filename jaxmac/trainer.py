@@ -136,7 +136,7 @@ def make_train(
         )
         updates, opt_state = optimizer.update(grads, opt_state, params)
         params = optax.apply_updates(params, updates)
-        metrics = dict(metrics, loss=loss, grad_norm=optax.global_norm(grads))
+        metrics = dict(metrics, loss=loss, grad_norm=optax.tree.norm(grads))
         return (params, target_params, opt_state, ring), metrics
 
     def one_round(state: TrainState, _):
