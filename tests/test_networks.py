@@ -190,6 +190,10 @@ def test_reset_in_the_middle_equals_a_fresh_start(agent):
     q_f, hs_f, _ = seq(params, fresh, initial_carry(cfg, (B,)), roll(tau))
     np.testing.assert_allclose(q_f[:, : T - k], q[:, k:], rtol=1e-5, atol=1e-5)
     np.testing.assert_allclose(hs_f[:, : T - k], hs[:, k:], rtol=1e-5, atol=1e-5)
+    # the head alone at other τ: same as the full apply with those τ, and τ matters
+    head = tjit(functools.partial(agent.net.apply, method="q_values"))
+    np.testing.assert_allclose(head(params, hs, tau), q, rtol=1e-5, atol=1e-5)
+    assert not np.allclose(head(params, hs, tau + 1), q)
     # without the reset the history before k matters
     no_reset = inputs.replace(reset=inputs.reset.at[:, k].set(False))
     assert not np.allclose(seq(params, no_reset, initial_carry(cfg, (B,)), tau)[0][:, k:], q[:, k:])
