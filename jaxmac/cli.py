@@ -3,6 +3,7 @@
     jaxmac rollout --env boxpushing-6x6 --episodes 1000   # random-policy rollouts + rendering
     jaxmac train --scenario boxpushing-6x6 --seeds 8      # ToMacVF, progress bar, run folder
     jaxmac train --resume runs/RUN_DIR                    # continue a killed run
+    jaxmac eval runs/RUN_DIR                              # greedy episode: text + PNG strip
 """
 
 from __future__ import annotations
@@ -68,6 +69,20 @@ def cmd_train(args) -> int:
     return 0
 
 
+def cmd_eval(args) -> int:
+    from jaxmac.evaluate import evaluate_run
+    from jaxmac.run import enable_compilation_cache
+
+    enable_compilation_cache()
+    txt, png, stats = evaluate_run(args.run_dir, args.seed_index)
+    with open(txt) as f:
+        print(f.read())
+    print(f"greedy episode of seed {args.seed_index}: {int(stats['length'])} steps, discounted return "
+          f"{stats['disc_return']:.3f}, undiscounted {stats['return']:.3f}")
+    print(f"wrote {txt} and {png}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="jaxmac", description="Asynchronous macro-action MARL in JAX.")
     sub = parser.add_subparsers(dest="command", required=True)
@@ -89,6 +104,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--resume", default=None, metavar="RUN_DIR", help="continue a killed run")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_train)
+
+    p = sub.add_parser("eval", help="render a greedy episode of a trained run (text and a PNG strip)")
+    p.add_argument("run_dir")
+    p.add_argument("--seed-index", type=int, default=0, help="which of the run's seeds")
+    p.set_defaults(func=cmd_eval)
     return parser
 
 

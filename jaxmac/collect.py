@@ -29,12 +29,14 @@ Act = Callable[[Any, Any, TimeStep, chex.PRNGKey, chex.Array], tuple[Any, chex.A
 
 
 def run_episode(
-    env: MacroEnv, act: Act, init_carry: Callable[[int], Any], params: Any, key: chex.PRNGKey, epsilon: chex.Array
-) -> tuple[TimeStep, TimeStep]:
+    env: MacroEnv, act: Act, init_carry: Callable[[int], Any], params: Any, key: chex.PRNGKey,
+    epsilon: chex.Array, record_states: bool = False,
+):
     """One episode of ``env.spec.horizon`` steps.
 
     Returns ``(reset_ts, traj, final_state)``: traj leaves ``[H, ...]``, final_state the env
-    state at the episode's end.
+    state at the episode's end. With ``record_states`` the last element is instead the env
+    state after every step (leaves ``[H, ...]``), for rendering.
     """
     key_reset, key_steps = jax.random.split(key)
     state, reset_ts = env.reset(key_reset)
@@ -46,11 +48,14 @@ def run_episode(
         new_state, new_ts = env.step(k_step, state, actions)
         # The env is not absorbing (Box Pushing Q11): keep the final state once done.
         state = jax.tree_util.tree_map(lambda old, new: jnp.where(ts.done, old, new), state, new_state)
-        return (state, new_ts, policy_carry), new_ts
+        return (state, new_ts, policy_carry), ((new_ts, state) if record_states else new_ts)
 
     init = (state, reset_ts, init_carry(env.spec.num_agents))
-    (final_state, _, _), traj = jax.lax.scan(body, init, jax.random.split(key_steps, env.spec.horizon))
-    return reset_ts, traj, final_state
+    (final_state, _, _), out = jax.lax.scan(body, init, jax.random.split(key_steps, env.spec.horizon))
+    if record_states:
+        traj, states = out
+        return reset_ts, traj, states
+    return reset_ts, out, final_state
 
 
 def run_episodes(env, act, init_carry, params, key, epsilon, num_episodes: int):

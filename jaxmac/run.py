@@ -137,9 +137,9 @@ def train_run(
     return _loop(trainer, state, 0, out_dir, meta, checkpoint_seconds, progress, stop_after_chunks, 0.0)
 
 
-def resume_run(out_dir: str, checkpoint_seconds: float = 120.0, progress: bool = True,
-               stop_after_chunks: int | None = None) -> dict[str, Any] | None:
-    """Continue the run in ``out_dir`` from its newest checkpoint (or from scratch if none)."""
+def load_run(out_dir: str):
+    """``(trainer, state, chunks_done, meta)`` of the run in ``out_dir`` at its newest checkpoint
+    (a fresh state and 0 chunks if it has none). ``state`` leaves are ``[seeds, ...]``."""
     path = os.path.join(out_dir, "config.json")
     if not os.path.exists(path):
         raise ValueError(f"{out_dir} holds no run (no config.json)")
@@ -151,20 +151,24 @@ def resume_run(out_dir: str, checkpoint_seconds: float = 120.0, progress: bool =
     state = jax.jit(jax.vmap(trainer.init))(keys)
     mngr = _checkpointer(out_dir)
     step = mngr.latest_step()
-    wall = 0.0
-    if step is None:
-        chunk = 0
-    else:
+    if step is not None:
         import orbax.checkpoint as ocp
 
-        abstract = jax.eval_shape(lambda s: _to_saveable(s), state)
+        abstract = jax.eval_shape(_to_saveable, state)
         state = _from_saved(mngr.restore(step, args=ocp.args.StandardRestore(abstract)))
-        chunk = step
-        progress_path = os.path.join(out_dir, "progress.json")
-        if os.path.exists(progress_path):
-            with open(progress_path) as f:
-                wall = float(json.load(f)["wall_seconds"])
     mngr.close()
+    return trainer, state, step or 0, meta
+
+
+def resume_run(out_dir: str, checkpoint_seconds: float = 120.0, progress: bool = True,
+               stop_after_chunks: int | None = None) -> dict[str, Any] | None:
+    """Continue the run in ``out_dir`` from its newest checkpoint (or from scratch if none)."""
+    trainer, state, chunk, meta = load_run(out_dir)
+    wall = 0.0
+    progress_path = os.path.join(out_dir, "progress.json")
+    if chunk and os.path.exists(progress_path):
+        with open(progress_path) as f:
+            wall = float(json.load(f)["wall_seconds"])
     _truncate_metrics(os.path.join(out_dir, "metrics.csv"), chunk * trainer.rounds_per_chunk)
     return _loop(trainer, state, chunk, out_dir, meta, checkpoint_seconds, progress, stop_after_chunks, wall)
 

@@ -1,0 +1,68 @@
+"""Greedy decentralised episodes of a trained run, rendered as text and as a PNG strip."""
+
+from __future__ import annotations
+
+import os
+
+import jax
+import numpy as np
+
+from jaxmac.collect import episode_returns, run_episode
+
+
+def greedy_episode_frames(out_dir: str, seed_index: int = 0, key: int = 0) -> tuple[list[str], dict]:
+    """Text frames (reset and every step until the episode ends) of one greedy episode of the
+    given seed's newest checkpoint, and that episode's returns."""
+    from jaxmac.run import load_run
+
+    trainer, state, chunks, meta = load_run(out_dir)
+    if not 0 <= seed_index < meta["seeds"]:
+        raise ValueError(f"seed_index={seed_index} is out of range; the run has seeds 0..{meta['seeds'] - 1}")
+    env, algo = trainer.env, trainer.algorithm
+    params = jax.tree_util.tree_map(lambda x: x[seed_index], state.params)
+    run = jax.jit(lambda p, k: run_episode(env, algo.act, algo.init_carry, p, k, 0.0, record_states=True))
+    reset_ts, traj, states = run(params, jax.random.key(key))
+    stats = {k: float(v) for k, v in episode_returns(traj, env.spec.discount).items()}
+    length = int(stats["length"])
+    reset_state, _ = env.reset(jax.random.key(key))
+    frames = [f"t=0 (reset)\n{env.render(reset_state)}"]
+    rewards = np.asarray(traj.reward)
+    for t in range(length):
+        frame_state = jax.tree_util.tree_map(lambda x, t=t: x[t], states)
+        frames.append(f"after step {t} (reward {rewards[t]:+.1f})\n{env.render(frame_state)}")
+    stats["chunks_trained"] = chunks
+    return frames, stats
+
+
+def save_strip(frames: list[str], png_path: str, max_panels: int = 8) -> None:
+    """Evenly spaced frames (first and last included) side by side in monospace text."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    idx = np.unique(np.linspace(0, len(frames) - 1, min(max_panels, len(frames))).round().astype(int))
+    lines = max(f.count("\n") + 1 for f in frames)
+    width = max(len(line) for f in frames for line in f.splitlines())
+    cols = min(4, len(idx))
+    rows = -(-len(idx) // cols)
+    fig, axes = plt.subplots(rows, cols, figsize=(0.075 * width * cols + 0.5, 0.16 * lines * rows + 0.5), dpi=110)
+    axes = np.atleast_1d(axes).ravel()
+    for ax in axes:
+        ax.axis("off")
+    for ax, i in zip(axes, idx):
+        ax.text(0.0, 1.0, frames[i], family="monospace", fontsize=8, va="top", ha="left", transform=ax.transAxes)
+    fig.tight_layout()
+    fig.savefig(png_path)
+    plt.close(fig)
+
+
+def evaluate_run(out_dir: str, seed_index: int = 0) -> tuple[str, str, dict]:
+    """Write ``greedy_seed{i}.txt`` and ``greedy_seed{i}.png`` into the run folder."""
+    frames, stats = greedy_episode_frames(out_dir, seed_index)
+    txt = os.path.join(out_dir, f"greedy_seed{seed_index}.txt")
+    png = os.path.join(out_dir, f"greedy_seed{seed_index}.png")
+    with open(txt, "w") as f:
+        f.write("\n\n".join(frames) + "\n")
+    save_strip(frames, png)
+    return txt, png, stats
