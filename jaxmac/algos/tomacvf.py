@@ -124,8 +124,8 @@ def make_tomacvf(config: TrainConfig, env: MacroEnv) -> Algorithm:
         h = batch.mac.shape[-2]
 
         micro = views.micro_view(batch, config.n_step)
-        q_tot = mix(take_rows(w, jnp.broadcast_to(jnp.arange(h), micro.mask.shape), 1),
-                    gather_q(q[:, :h], micro.mac))
+        first_rows = lambda tree, k: jax.tree_util.tree_map(lambda x: x[:, :k], tree)  # noqa: E731
+        q_tot = mix(first_rows(w, h), gather_q(q[:, :h], micro.mac))
         boot = bootstrap(q_detached, q_tgt, w_tgt, micro.boot_row, micro.boot_avail, micro.boot_free,
                          micro.boot_mac)
         y_micro = jax.lax.stop_gradient(micro.ret + micro.boot_discount * boot)
@@ -172,7 +172,7 @@ def make_tomacvf(config: TrainConfig, env: MacroEnv) -> Algorithm:
         q, w = forward(params, inputs, tau, state)
         q_tgt, w_tgt = forward(target_params, inputs, tau, state)
         kk = jv.mask.shape[-1]
-        q_tot = mix(take_rows(w, jnp.broadcast_to(jnp.arange(kk), jv.mask.shape), 1), gather_q(q[:, :kk], jv.mac))
+        q_tot = mix(jax.tree_util.tree_map(lambda x: x[:, :kk], w), gather_q(q[:, :kk], jv.mac))
         nxt = jnp.broadcast_to(jnp.arange(1, kk + 1), jv.mask.shape)
         boot = bootstrap(jax.lax.stop_gradient(q), q_tgt, w_tgt, nxt, jv.avail_next, jv.free_next, jv.next_mac)
         y = jax.lax.stop_gradient(jv.reward + jv.discount * boot)
