@@ -14,10 +14,12 @@ Every recorded field is compared: step I/O (obs, cur_mac, mac_done, reward, done
 truncated, state) and every internal field we keep (positions, waypoints, timers, baskets,
 F's action/timer/failed flag/staging/search counts, humans, step counter), plus our
 macro-action progress ``t_m`` against the one implied by the recorded ``mac_done``.
-Paper-config files (no noise) are compared bit-exactly, positions and robot timers
-reconstructed in float64 from our integer state; only the float32 global state vector
-gets a tolerance. ``_noise`` files run the continuous-motion path with the recorded draws
-injected (:class:`~envs_jax.warehouse.InjectedNoiseEnv`); their positions get ``atol``.
+Paper-config files (no noise) are compared bit-exactly: positions and robot timers are
+reconstructed in float64 from our integer state, and the (float32) global state vector must
+equal the float32 rounding of the recorded float64 one. ``_noise`` files run the
+continuous-motion path with the recorded draws injected
+(:class:`~envs_jax.warehouse.InjectedNoiseEnv`); their positions (and the position entries
+of the state) are float32 computations and get ``atol``.
 
 Our ``terminated`` is the env's ``done`` (the task is done, or E's horizon: SPEC §12.9);
 our ``truncated`` is the horizon cut without it (the trace's ``truncated & ~done``).
@@ -39,8 +41,8 @@ from envs_jax.core import EnvState
 from envs_jax.warehouse import InjectedNoiseEnv, Noise, WarehouseCore, WarehouseEnv, make_warehouse
 from envs_jax.warehouse import variants as V
 
-ATOL = {"state": 1e-5}
-ATOL_NOISE = {"state": 1e-5, "rb_xy": 1e-5}
+ATOL: dict[str, float] = {}  # exact motion: everything exact (state: the float32 rounding of the trace's)
+ATOL_NOISE = {"state": 1e-5, "rb_xy": 1e-5}  # float32 positions under motion noise
 
 
 def _detects(d: Mapping[str, np.ndarray]) -> bool:
@@ -187,6 +189,7 @@ def expected_rows(d: Mapping[str, np.ndarray], rows: np.ndarray, t_m: np.ndarray
         "h_step", "h_tleft", "h_obtained", "h_finished", "h_served", "count_step")}
     out["truncated"] = d["truncated"][rows] & ~d["done"][rows]
     out["t_m"] = t_m[rows]
+    out["state"] = out["state"].astype(np.float32)  # our state vector is float32 by API
     return out
 
 

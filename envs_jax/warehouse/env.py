@@ -9,9 +9,16 @@ One primitive step (§5) is factored into
 so a conformance harness can replay recorded draws (:class:`InjectedNoiseEnv`).
 
 Sizes: nT robots, nH humans, n = nT + 1 agents (F last), nW = nH + 2 robot waypoints /
-robot actions, nF = 1 + nT + 3 F actions. All internal quantities are integers: robot timers
-are kept in hundredths of a step (the reference's ``d - 0.8``), positions as motion-graph
-points (``motion.py``) so that everything matches the float64 reference exactly.
+robot actions, nF = 1 + nT + 3 F actions. The dynamics are integer arithmetic: robot timers
+are kept in hundredths of a step (the reference's ``d - 0.8``) and, without motion noise,
+positions as motion-graph points (``motion.py``); the ratios of the state vector come from
+tables rounded once from float64. Everything thus matches the float64 reference exactly
+(the state vector is its float32 rounding), under ``jit``, ``vmap`` or op by op.
+
+Performance note: per-agent arrays are tiny ([nT] <= 3), so under ``vmap`` they become
+[batch, nT] arrays whose minor dimension is too short to vectorise on CPU. The robots are
+therefore updated by an unrolled ``lax.scan`` over robots working on scalars (the
+reference's sequential order anyway), and small-axis indexing uses select chains.
 """
 
 from __future__ import annotations
@@ -25,6 +32,20 @@ from flax import struct
 from envs_jax.core import CoreStep, EnvSpec, MacroEnv
 from envs_jax.warehouse import variants as V
 from envs_jax.warehouse.motion import build_motion_graph, continuous_move
+
+
+# Indexing a small axis by a traced index is written as a chain of selects: under vmap,
+# XLA turns x[i] into a gather (or a one-hot product into a reduction), which on CPU cost
+# several times more than selects that fuse with their neighbours.
+def _onehot(i: chex.Array, n: int) -> chex.Array:
+    """bool[..., n]: ``i[..., None] == arange(n)`` (all False for out-of-range i)."""
+    return i[..., None] == jnp.arange(n)
+
+
+def _pick(x: chex.Array, i: chex.Array) -> chex.Array:
+    """``x[..., i]`` for a small static last axis (``x[..., 0]`` where i is out of range)."""
+    n = x.shape[-1]
+    return jnp.select([i == j for j in range(1, n)], [x[..., j] for j in range(1, n)], x[..., 0])
 
 
 @struct.dataclass
@@ -78,19 +99,37 @@ class WarehouseEnv(MacroEnv[WarehouseCore]):
             discount=1.0,
             agent_names=tuple(f"robot{i}" for i in range(n_t)) + ("fetch",),
         )
-        self.graph = build_motion_graph(layout)
+        self.graph = g = build_motion_graph(layout)
+        # One row per (robot, point, target): next point, its x and y (float32 bits) and the
+        # distance in 1/100, so that exact motion is a single gather per robot and step.
+        next_xy = g.xy[np.arange(n_t)[:, None, None], g.next].view(np.int32)  # [nT, P, nW, 2]
+        self._motion_rows = np.concatenate(
+            [g.next[..., None], next_xy, g.dist_cents[..., None]], axis=-1
+        ).reshape(-1, 4)
         # Constant tables (numpy: closed over as constants by jit).
         self._waypoints = np.array([layout.waypoints(i) for i in range(n_t)], np.float32)  # [nT, nW, 2]
         self._tables = np.array(layout.tables, np.float32)  # [nT, 2]
         self._durations = np.array(config.human_durations, np.int32)  # [nH, 4]
-        self._f_dur = np.array(
-            [V.WAIT_DURATION] + [V.PASS_DURATION] * n_t + [V.SEARCH_DURATION] * V.N_TOOLS, np.int32
-        )
+        # State-vector entries that are ratios, tabulated from float64 and rounded once, so the
+        # float32 state is exactly the rounded reference value (and identical under jit, vmap
+        # or op-by-op execution, where XLA may otherwise rewrite a division).
+        scale = np.array([V.STATE_X_SCALE, V.STATE_Y_SCALE])
+        self._state_xy = (g.xy64 / scale).astype(np.float32)  # [nT, P, 2]
+        self._fetch_state_xy = (np.array(layout.fetch) / scale).astype(np.float32)
+        t = np.arange(self._durations.max() + 1)
+        self._h_progress = (1.0 - t / self._durations[..., None]).astype(np.float32)  # [nH, 4, T]: T_h = t
+        self._f_tau_min = -1  # F's timer after a step lies in [-1, longest duration + 1]
+        tau = np.arange(self._f_tau_min, V.SEARCH_DURATION + 2)
+        durs = np.array([V.WAIT_DURATION, V.PASS_DURATION, V.SEARCH_DURATION])
+        self._f_progress = (tau / durs[:, None]).astype(np.float32)  # [Wait/Pass/Search, tau]
         self.go_tr, self.get_tool = n_h, n_h + 1  # robot action ids
         # The action whose arrival step ends the robot's update early (§5.1, §12.1).
         self._exit_action = self.go_tr if config.arrival_exit_on_go_tr else self.get_tool
         # Passes (F actions 1..this) that are checked when they start (see WarehouseConfig).
         self._checked_passes = n_t if config.check_every_pass else min(n_t, 2)
+        # One persistent scan body (no closure): JAX caches its trace by identity, so that eager,
+        # op-by-op stepping does not recompile the robot scan on every step.
+        self._robot_update_fn = self._robot_update
 
     # --- reset ------------------------------------------------------------------------
     def _core_reset(self, key: chex.PRNGKey) -> WarehouseCore:
@@ -157,51 +196,56 @@ class WarehouseEnv(MacroEnv[WarehouseCore]):
         )
 
     def _robots_step(self, core: WarehouseCore, k: chex.Array, eps: chex.Array):
-        """§5.1 for every robot at once. Returns (core, done bool[nT], reward f32[])."""
-        n_h, n_t = self.n_humans, self.n_robots
-        rows = jnp.arange(n_t)
+        """§5.1 for the robots in index order (a later robot sees the tool an earlier one
+        handed over). Returns (core, done bool[nT], reward f32[]).
+
+        The scan is unrolled and its body works on one robot's scalars, so that under
+        ``vmap`` every operand is a [batch] vector (fast on CPU) rather than [batch, nT]."""
+        rows = (jnp.arange(self.n_robots), k, core.rb_xy, core.rb_pt, core.rb_wp, core.rb_tau, core.basket, eps)
+        carry = (core.h_phase, core.h_time, core.h_got, jnp.zeros((), jnp.float32))
+        (_, _, h_got, reward), (xy, pt, wp, tau, basket, done) = jax.lax.scan(
+            self._robot_update_fn, carry, rows, unroll=True
+        )
+        core = core.replace(rb_xy=xy, rb_pt=pt, rb_wp=wp, rb_tau=tau, basket=basket, h_got=h_got)
+        return core, done, reward
+
+    def _robot_update(self, carry, robot):
+        """One robot's move (§2.1), timer/termination (§5.1) and handover check."""
+        h_phase, h_time, h_got, reward = carry  # humans do not change before §5.3
+        i, k, xy, pt, wp, tau, basket, eps = robot
+        n_h = self.n_humans
+        target_xy = jnp.asarray(self._waypoints)[i, k]
         if self.exact_motion:
-            d_cents = jnp.asarray(self.graph.dist_cents)[rows, core.rb_pt, k]
-            moved_pt = jnp.asarray(self.graph.next)[rows, core.rb_pt, k]
-            moved_xy = jnp.asarray(self.graph.xy)[rows, moved_pt]
+            n_p = self.graph.xy.shape[1]
+            row = jnp.asarray(self._motion_rows)[(i * n_p + pt) * (n_h + 2) + k]  # [4]
+            moved_pt, d_cents = row[0], row[3]
+            moved_xy = jax.lax.bitcast_convert_type(row[1:3], jnp.float32)
         else:
-            d_cents, moved_xy = continuous_move(core.rb_xy, jnp.asarray(self._waypoints)[rows, k], eps)
-            moved_pt = core.rb_pt
+            d_cents, moved_xy = continuous_move(xy, target_xy, eps)
+            moved_pt = pt
         arrive = d_cents <= V.SPEED_CENTS
-        travelling = core.rb_tau > 0
+        travelling = tau > 0
         # Arrival step of the "exit" action: stop there, not done, no handover check (§12.1).
         stop = arrive & travelling & (k == self._exit_action)
-        tau_arr = jnp.where(travelling, 0, core.rb_tau)
+        tau_arr = jnp.where(travelling, 0, tau)
         waiting = tau_arr - 100  # Get-Tool counts one more waiting step
         timeout = waiting <= -100 * V.GET_TOOL_PATIENCE
         is_get_tool = k == self.get_tool
         tau_arr = jnp.where(is_get_tool & ~stop, jnp.where(timeout, -100, waiting), tau_arr)
         done = arrive & ~stop & (~is_get_tool | timeout)
         tau = jnp.where(arrive, tau_arr, d_cents - V.SPEED_CENTS)
-        wp = jnp.where(arrive, k, core.rb_wp)
-        target_xy = jnp.asarray(self._waypoints)[rows, k]
-        xy = jnp.where(arrive[:, None], target_xy, moved_xy)
+        wp = jnp.where(arrive, k, wp)
+        xy = jnp.where(arrive, target_xy, moved_xy)
         pt = jnp.where(arrive, k, moved_pt)
 
-        # Handover to the human at the robot's own work area (robots in index order: the first
-        # eligible robot serves, a later one then sees the tool as obtained).
-        h = jnp.clip(k, 0, n_h - 1)
-        req = jnp.minimum(core.h_phase, 2)[h]  # tool that human wants
-        eligible = (
-            ~stop
-            & (k < n_h)
-            & (wp == k)
-            & ~core.h_got[h]
-            & (jnp.take_along_axis(core.basket, req[:, None], axis=1)[:, 0] > 0)
-        )
-        earlier_same = (h[None, :] == h[:, None]) & eligible[None, :] & (rows[None, :] < rows[:, None])
-        give = eligible & ~earlier_same.any(axis=1)
-        late = core.h_time[h] <= 0
-        reward = jnp.sum(jnp.where(give, V.HANDOVER_REWARD + jnp.where(late, self.config.delay_penalty, 0.0), 0.0))
-        basket = core.basket - (give[:, None] & (jnp.arange(V.N_TOOLS)[None, :] == req[:, None]))
-        h_got = core.h_got | (jnp.zeros((n_h,), jnp.int32).at[h].add(give.astype(jnp.int32)) > 0)
-        core = core.replace(rb_xy=xy, rb_pt=pt, rb_wp=wp, rb_tau=tau, basket=basket, h_got=h_got)
-        return core, done, reward
+        # Handover to the human at the robot's own work area, if it wants a tool we carry.
+        req = _pick(jnp.minimum(h_phase, 2), k)  # the tool that human wants
+        give = ~stop & (k < n_h) & (wp == k) & ~_pick(h_got, k) & (_pick(basket, req) > 0)
+        late = _pick(h_time, k) <= 0
+        reward += jnp.where(give, V.HANDOVER_REWARD + jnp.where(late, self.config.delay_penalty, 0.0), 0.0)
+        basket = basket - (give & _onehot(req, V.N_TOOLS))
+        h_got = h_got | (give & _onehot(k, n_h))
+        return (h_phase, h_time, h_got, reward), (xy, pt, wp, tau, basket, done)
 
     def _fetch_step(self, core, k_rb, rb_done, k, free, eta):
         """§5.2: F acts after the robots and may release one of them. Returns
@@ -211,26 +255,21 @@ class WarehouseEnv(MacroEnv[WarehouseCore]):
         busy = tau > 0
         start = ~busy & free
         finish = ~busy & ~free
-        f_dur = jnp.asarray(self._f_dur)
 
         # Start k: a pass is doomed at once if its robot is not already waiting at its table.
-        j_new = jnp.clip(k - 1, 0, n_t - 1)
         # The reference only checks passes to robots 0 and 1 at their start (see WarehouseConfig).
         starts_pass = start & (k >= 1) & (k <= self._checked_passes)
-        not_ready = (core.rb_wp[j_new] != self.get_tool) | (core.rb_tau[j_new] > -100)
+        not_ready = (_pick(core.rb_wp, k - 1) != self.get_tool) | (_pick(core.rb_tau, k - 1) > -100)
         failed = core.f_failed | (starts_pass & not_ready)
 
         # Finish the running action.
         act = core.f_act
         is_pass = finish & (act >= 1) & (act <= n_t)
-        j = jnp.clip(act - 1, 0, n_t - 1)
-        success = is_pass & ~failed & (core.rb_tau[j] < 0) & (k_rb[j] == self.get_tool)
+        robot_j = _onehot(act - 1, n_t)  # the pass's robot (all False if not a pass)
+        success = is_pass & ~failed & (_pick(core.rb_tau, act - 1) < 0) & (_pick(k_rb, act - 1) == self.get_tool)
         n_staged = jnp.sum(core.staging >= 0)
         give = success & (n_staged > 0)
-        robot_j = jnp.arange(n_t) == j
-        basket = core.basket + (
-            (give & robot_j)[:, None] & (jnp.arange(V.N_TOOLS)[None, :] == core.staging[0])
-        )
+        basket = core.basket + ((give & robot_j)[:, None] & _onehot(core.staging[0], V.N_TOOLS))
         popped = jnp.concatenate([core.staging[1:], jnp.full((1,), -1, jnp.int32)])
         staging = jnp.where(give, popped, core.staging)
         rb_done = rb_done | (success & robot_j)
@@ -238,15 +277,13 @@ class WarehouseEnv(MacroEnv[WarehouseCore]):
         reward = jnp.where(is_pass & ~success, self.config.drop_penalty, 0.0)
         failed = jnp.where(is_pass, False, failed)
 
-        o = jnp.clip(act - 1 - n_t, 0, V.N_TOOLS - 1)
+        o = act - 1 - n_t  # searched tool type
         is_search = finish & (act >= 1 + n_t)
-        found_ok = is_search & (n_staged < V.STAGING_CAPACITY) & (core.found[o] < self.config.n_each_obj)
-        found = core.found.at[o].add(found_ok.astype(jnp.int32))
-        staging = jnp.where(
-            found_ok & (jnp.arange(V.STAGING_CAPACITY) == n_staged), o, staging
-        )
+        found_ok = is_search & (n_staged < V.STAGING_CAPACITY) & (_pick(core.found, o) < self.config.n_each_obj)
+        found = core.found + (found_ok & _onehot(o, V.N_TOOLS))
+        staging = jnp.where(found_ok & (jnp.arange(V.STAGING_CAPACITY) == n_staged), o, staging)
 
-        tau = jnp.where(start, f_dur[jnp.clip(k, 0, len(self._f_dur) - 1)] - 1 + eta, tau)
+        tau = jnp.where(start, self._duration(k) - 1 + eta, tau)
         f_act = jnp.where(start, k, act)
         f_done = jnp.where(start, k == 0, free | finish)
         core = core.replace(
@@ -254,6 +291,12 @@ class WarehouseEnv(MacroEnv[WarehouseCore]):
             rb_tau=rb_tau,
         )
         return core, rb_done, f_done, reward
+
+    def _duration(self, f_action: chex.Array) -> chex.Array:
+        """Nominal duration of an F action (Wait, Pass, Search)."""
+        return jnp.where(
+            f_action == 0, V.WAIT_DURATION, jnp.where(f_action <= self.n_robots, V.PASS_DURATION, V.SEARCH_DURATION)
+        )
 
     def _humans_step(self, core: WarehouseCore) -> WarehouseCore:
         """§5 items 4–5: served check, then phase timers of the unfinished humans."""
@@ -264,7 +307,7 @@ class WarehouseEnv(MacroEnv[WarehouseCore]):
         fin = core.h_fin | (advance & (core.h_phase == 3))
         step_up = advance & (core.h_phase < 3)
         phase = core.h_phase + step_up
-        next_dur = jnp.take_along_axis(jnp.asarray(self._durations), jnp.minimum(phase, 3)[:, None], 1)[:, 0]
+        next_dur = _pick(jnp.asarray(self._durations), phase)
         time = jnp.where(step_up, next_dur, time)
         got = jnp.where(step_up & (phase <= 2), False, core.h_got)
         return core.replace(served=served, h_time=time, h_phase=phase, h_got=got, h_fin=fin)
@@ -273,12 +316,11 @@ class WarehouseEnv(MacroEnv[WarehouseCore]):
     def _core_obs(self, core: WarehouseCore) -> chex.Array:
         """§7: robots see their location, the human at it, their basket and (near the tool
         room) how many tools are staged; F sees the staged tools and who waits at a table."""
-        n_h, n_t = self.n_humans, self.n_robots
+        n_h = self.n_humans
         wp = core.rb_wp
         loc = jax.nn.one_hot(jnp.where(wp >= 0, wp, n_h + 2), n_h + 3)
         at_wa = (wp >= 0) & (wp < n_h)
-        h = jnp.clip(wp, 0, n_h - 1)
-        slot = 4 * h + core.h_phase[h]
+        slot = 4 * wp + _pick(core.h_phase, wp)
         humans = jax.nn.one_hot(jnp.where(at_wa, slot, -1), V.N_PHASES * n_h)
         n_staged = jnp.sum(core.staging >= 0)
         ready = jnp.stack([n_staged == 1, n_staged == 2]).astype(jnp.float32)
@@ -287,8 +329,8 @@ class WarehouseEnv(MacroEnv[WarehouseCore]):
             [loc, humans, core.basket.astype(jnp.float32), near_f[:, None] * ready[None, :]], axis=1
         )
         staged = self._staged_counts(core)
-        if self.exact_motion:
-            at_table = jnp.asarray(self.graph.at_table)[jnp.arange(n_t), core.rb_pt]
+        if self.exact_motion:  # only the table node has the table's exact coordinates
+            at_table = core.rb_pt == self.get_tool
         else:
             at_table = jnp.all(core.rb_xy == jnp.asarray(self._tables), axis=1)
         fetch_obs = jnp.concatenate([staged, at_table.astype(jnp.float32)])
@@ -301,15 +343,20 @@ class WarehouseEnv(MacroEnv[WarehouseCore]):
 
     def _core_global_state(self, core: WarehouseCore) -> chex.Array:
         """§8 (the reference's ``get_state`` for A/B/C, its generalisation for D/E)."""
-        n_t = self.n_robots
-        xy = jnp.concatenate([core.rb_xy, jnp.asarray([self.layout.fetch], jnp.float32)])
-        pos = (xy / jnp.asarray([V.STATE_X_SCALE, V.STATE_Y_SCALE], jnp.float32)).ravel()
+        n_t, n_h = self.n_robots, self.n_humans
+        if self.exact_motion:
+            robots_xy = jnp.asarray(self._state_xy)[jnp.arange(n_t), core.rb_pt]
+        else:
+            robots_xy = core.rb_xy / jnp.asarray([V.STATE_X_SCALE, V.STATE_Y_SCALE], jnp.float32)
+        pos = jnp.concatenate([robots_xy, jnp.asarray(self._fetch_state_xy)[None]]).ravel()
         passing = (core.f_act >= 1) & (core.f_act <= n_t) & (core.f_tau > 0)
         in_hand = jax.nn.one_hot(jnp.where(passing, core.staging[0], -1), V.N_TOOLS)
-        dur = jnp.asarray(self._f_dur)[jnp.clip(core.f_act, 0, len(self._f_dur) - 1)]
-        progress = jnp.where(core.f_act >= 0, core.f_tau / dur, 0.0)
-        durations = jnp.take_along_axis(jnp.asarray(self._durations), core.h_phase[:, None], 1)[:, 0]
-        h_progress = jnp.where(core.h_time >= 0, 1.0 - core.h_time / durations, -1.0)
+        kind = jnp.where(core.f_act <= 0, 0, jnp.where(core.f_act <= n_t, 1, 2))  # Wait, Pass, Search
+        tau_ix = jnp.clip(core.f_tau - self._f_tau_min, 0, self._f_progress.shape[1] - 1)
+        progress = jnp.where(core.f_act >= 0, jnp.asarray(self._f_progress)[kind, tau_ix], 0.0)
+        t_ix = jnp.clip(core.h_time, 0, self._h_progress.shape[2] - 1)
+        h_progress = jnp.asarray(self._h_progress)[jnp.arange(n_h), core.h_phase, t_ix]
+        h_progress = jnp.where(core.h_time >= 0, h_progress, -1.0)
         humans = jnp.concatenate([jax.nn.one_hot(core.h_phase, V.N_PHASES), h_progress[:, None]], axis=1)
         return jnp.concatenate(
             [

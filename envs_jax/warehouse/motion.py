@@ -44,7 +44,6 @@ class MotionGraph:
     xy: np.ndarray  # f32[nT, P, 2] the same, rounded to float32 (for the state vector)
     next: np.ndarray  # i32[nT, P, nW] point after one step towards waypoint k (k itself on arrival)
     dist_cents: np.ndarray  # i32[nT, P, nW] round2(distance to waypoint k) in hundredths
-    at_table: np.ndarray  # bool[nT, P] the point's coordinates equal the robot's table spot exactly
     start: np.ndarray  # i32[nT] start point of each robot
     n_points: np.ndarray  # i32[nT] true point count of each robot
 
@@ -114,18 +113,18 @@ def build_motion_graph(layout: Layout) -> MotionGraph:
     xy64 = np.zeros((n_t, n_p, 2))
     nxt = np.tile(np.arange(n_p, dtype=np.int32)[None, :, None], (n_t, 1, n_w))
     dist = np.full((n_t, n_p, n_w), UNREACHABLE, np.int32)
-    at_table = np.zeros((n_t, n_p), bool)
     for i, (points, edges, _) in enumerate(per_robot):
         xy64[i, : len(points)] = np.stack(points)
         for (p, k), (q, d) in edges.items():
             nxt[i, p, k], dist[i, p, k] = q, d
-        at_table[i, : len(points)] = (xy64[i, : len(points)] == np.array(layout.tables[i])).all(-1)
+        # Points are unique by coordinates, so "exactly at the table" means "on the table node".
+        at_table = np.flatnonzero((xy64[i, : len(points)] == np.array(layout.tables[i])).all(-1))
+        assert at_table.tolist() == [layout.n_humans + 1], "the table node must be unique"
     return MotionGraph(
         xy64=xy64,
         xy=xy64.astype(np.float32),
         next=nxt,
         dist_cents=dist,
-        at_table=at_table,
         start=np.array([s for _, _, s in per_robot], np.int32),
         n_points=np.array([len(points) for points, _, _ in per_robot], np.int32),
     )
