@@ -315,31 +315,35 @@ class WarehouseEnv(MacroEnv[WarehouseCore]):
     # --- observations and state ------------------------------------------------------------
     def _core_obs(self, core: WarehouseCore) -> chex.Array:
         """§7: robots see their location, the human at it, their basket and (near the tool
-        room) how many tools are staged; F sees the staged tools and who waits at a table."""
-        n_h = self.n_humans
-        wp = core.rb_wp
-        loc = jax.nn.one_hot(jnp.where(wp >= 0, wp, n_h + 2), n_h + 3)
+        room) how many tools are staged; F sees the staged tools and who waits at a table.
+
+        Built column-wise (each entry compares its column index with the agent's values) so
+        that the whole [n, O] matrix is one elementwise computation."""
+        n_h, n_t = self.n_humans, self.n_robots
+        col = jnp.arange(self.spec.obs_dim)
+        c = col[None, :]  # [1, O]
+        wp = core.rb_wp[:, None]  # [nT, 1]
         at_wa = (wp >= 0) & (wp < n_h)
-        slot = 4 * wp + _pick(core.h_phase, wp)
-        humans = jax.nn.one_hot(jnp.where(at_wa, slot, -1), V.N_PHASES * n_h)
+        loc = jnp.where(wp >= 0, wp, n_h + 2)  # one-hot location, "none" last
+        human = jnp.where(at_wa, n_h + 3 + 4 * wp + _pick(core.h_phase, wp), -1)  # slot 4h + c_h
+        b0 = n_h + 3 + V.N_PHASES * n_h  # basket columns b0..b0+2, then the two ready flags
+        basket = jnp.where((c >= b0) & (c < b0 + V.N_TOOLS), _pick(core.basket[:, None, :], c - b0), 0)
         n_staged = jnp.sum(core.staging >= 0)
-        ready = jnp.stack([n_staged == 1, n_staged == 2]).astype(jnp.float32)
         near_f = (wp < 0) | (wp >= n_h)
-        robot_obs = jnp.concatenate(
-            [loc, humans, core.basket.astype(jnp.float32), near_f[:, None] * ready[None, :]], axis=1
-        )
-        staged = self._staged_counts(core)
+        ready = near_f & (((c == b0 + 3) & (n_staged == 1)) | ((c == b0 + 4) & (n_staged == 2)))
+        robots = ((c == loc) | (c == human) | ready).astype(jnp.float32) + basket.astype(jnp.float32)
         if self.exact_motion:  # only the table node has the table's exact coordinates
             at_table = core.rb_pt == self.get_tool
         else:
             at_table = jnp.all(core.rb_xy == jnp.asarray(self._tables), axis=1)
-        fetch_obs = jnp.concatenate([staged, at_table.astype(jnp.float32)])
-        fetch_obs = jnp.pad(fetch_obs, (0, self.spec.obs_dim - fetch_obs.shape[0]))
-        robot_obs = jnp.pad(robot_obs, ((0, 0), (0, self.spec.obs_dim - robot_obs.shape[1])))
-        return jnp.concatenate([robot_obs, fetch_obs[None]], axis=0)
+        staged = jnp.sum(core.staging[:, None] == jnp.where(col < V.N_TOOLS, col, -2), axis=0)
+        waiting = (col >= V.N_TOOLS) & (col < V.N_TOOLS + n_t) & _pick(at_table, col - V.N_TOOLS)
+        fetch = staged.astype(jnp.float32) + waiting.astype(jnp.float32)
+        return jnp.concatenate([robots, fetch[None]], axis=0)
 
     def _staged_counts(self, core: WarehouseCore) -> chex.Array:
-        return jnp.sum(jax.nn.one_hot(core.staging, V.N_TOOLS), axis=0)  # -1 -> zero row
+        """f32[3]: staged tools per type."""
+        return jnp.sum(core.staging[:, None] == jnp.arange(V.N_TOOLS), axis=0).astype(jnp.float32)
 
     def _core_global_state(self, core: WarehouseCore) -> chex.Array:
         """§8 (the reference's ``get_state`` for A/B/C, its generalisation for D/E)."""
