@@ -66,29 +66,29 @@ def replayer(map_type: str, horizon: int):
 
 
 def trace_state(data: Mapping[str, np.ndarray], rows: np.ndarray, t: np.ndarray) -> EnvState:
-    """Batched ``EnvState`` of the recorded states ``rows`` (episode step ``t`` for truncation)."""
+    """``EnvState`` (numpy leaves, batched) of the recorded states ``rows``, at episode step ``t``."""
     from envs_jax.overcooked.world import OvercookedState
 
-    i32 = lambda k: jnp.asarray(data[k][rows], jnp.int32)  # noqa: E731
+    i32 = lambda k: np.asarray(data[k][rows], np.int32)  # noqa: E731
     n = len(rows)
     core = OvercookedState(
         pos=i32("s_pos"),
         chop=i32("s_chop"),
         hold=i32("s_hold"),
-        plate_has=jnp.asarray(data["s_plate_has"][rows], bool),
+        plate_has=np.asarray(data["s_plate_has"][rows], bool),
         knife_hold=i32("s_knife_hold"),
         deliv_hold=i32("s_deliv_hold"),
         belief=i32("s_belief"),
         chop_ctr=i32("s_chop_ctr"),
-        prim=jnp.full((n, 3), 4, jnp.int32),
+        prim=np.full((n, 3), 4, np.int32),
     )
     return EnvState(
         core=core,
-        obs_macro=jnp.asarray(data["s_obs"][rows], jnp.float32),
+        obs_macro=np.asarray(data["s_obs"][rows], np.float32),
         mac=i32("s_mac_cur"),
-        mac_done=jnp.asarray(data["s_mac_done"][rows], bool),
-        t_m=jnp.zeros((n, 3), jnp.int32),
-        t=jnp.asarray(t, jnp.int32),
+        mac_done=np.asarray(data["s_mac_done"][rows], bool),
+        t_m=np.zeros((n, 3), np.int32),  # not recorded; does not affect the dynamics
+        t=np.asarray(t, np.int32),
     )
 
 
@@ -169,14 +169,14 @@ def check(path: str, data: Mapping[str, np.ndarray]) -> FileReport:
     # Pre-states and inputs laid out [episode, step]; padding repeats the episode's first state.
     pre_rows = np.repeat(data["ep_state_start"][:, None], max_len, axis=1)
     pre_rows[ep, step] = rows
-    pre = trace_state(data, pre_rows.reshape(-1), np.tile(np.arange(max_len), n_ep))
-    pre = jax.tree_util.tree_map(lambda x: x.reshape(n_ep, max_len, *x.shape[1:]), pre)
+    # Lanes 0..E-1: rollouts from reset; lanes E..2E-1: one-step replays from recorded states.
+    pre_rows = np.concatenate([pre_rows, pre_rows])
+    pre = trace_state(data, pre_rows.reshape(-1), np.tile(np.arange(max_len), 2 * n_ep))
+    pre = jax.tree_util.tree_map(lambda x: x.reshape(2 * n_ep, max_len, *x.shape[1:]), pre)
     actions = np.zeros((n_ep, max_len, 3), np.int32)
     actions[ep, step] = data["t_mac_in"][trans]
-    # Lanes 0..E-1: rollouts from reset; lanes E..2E-1: one-step replays from recorded states.
-    both = lambda x: jnp.concatenate([x, x])  # noqa: E731
     one_step = np.repeat([False, True], n_ep)
-    got_reset, got = jax.device_get(replay(jax.tree_util.tree_map(both, pre), both(jnp.asarray(actions)), one_step))
+    got_reset, got = jax.device_get(replay(pre, np.concatenate([actions, actions]), one_step))
     ok_roll, first_roll = compare_fields(expected, {k: v[:n_ep] for k, v in got.items()}, valid, ATOL, mode="rollout")
     ok_one, first = compare_fields(expected, {k: v[n_ep:] for k, v in got.items()}, valid, ATOL, mode="one-step")
 

@@ -86,14 +86,17 @@ class Overcooked(MacroEnv[OvercookedState]):
         nxt, ev = physics.physics(self.layout, core.replace(chop_ctr=chop_ctr), prim)
         nxt = nxt.replace(belief=world.update_beliefs(nxt, radius))
         done = done | controllers.post_step_done(self.layout, nxt, actions)
+        return CoreStep(core=nxt, mac=actions, mac_done=done, reward=self.reward(ev), terminated=ev.correct > 0)
+
+    def reward(self, ev: physics.Events) -> chex.Array:
+        """Team reward (f32[]) of one step's events, with the configured weights (SPEC §10)."""
         cfg = self.config
-        reward = (
+        return (
             jnp.float32(cfg.reward_step)
             + ev.chops.astype(jnp.float32) * cfg.reward_chop
             + ev.wrong.astype(jnp.float32) * cfg.reward_wrong
             + ev.correct.astype(jnp.float32) * cfg.reward_correct
         )
-        return CoreStep(core=nxt, mac=actions, mac_done=done, reward=reward, terminated=ev.correct > 0)
 
     def _core_obs(self, core: OvercookedState) -> chex.Array:
         return world.observations(core, self.config.obs_radius)

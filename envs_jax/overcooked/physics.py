@@ -183,8 +183,9 @@ def physics(layout: Layout, s: OvercookedState, prim: chex.Array) -> tuple[Overc
     """Apply the joint primitive action ``prim`` (int32[3]) to the world (SPEC §5).
 
     Pass 1 gives every agent its full turn. Later passes only retry deferred moves, whose target
-    cell is floor (it held an agent), so they are plain walks (``_retry_turn``); passes 2 and 3
-    are unrolled like pass 1, which is what the original's loop amounts to (SPEC §5 bound)."""
+    cell is floor (it held an agent), so they are plain walks (``_retry_turn``). Three passes are
+    what the original's loop amounts to (SPEC §5 bound); each pass is a loop over agents (a
+    large unrolled body compiles slowly)."""
     zero = jnp.zeros((), jnp.int32)
     ev = Events(zero, zero, zero)
     resolved = jnp.zeros((N_AGENTS,), bool)
@@ -197,7 +198,7 @@ def physics(layout: Layout, s: OvercookedState, prim: chex.Array) -> tuple[Overc
 
     # A loop rather than three unrolled turns: the turn is large and compiling it once is 3× faster.
     s, ev, resolved = jax.lax.fori_loop(0, N_AGENTS, first_pass, (s, ev, resolved))
-    for _ in range(2):
-        for i in range(N_AGENTS):
-            s, resolved = _retry_turn(s, resolved, prim, i)
+    s, resolved = jax.lax.fori_loop(
+        0, 2 * N_AGENTS, lambda it, carry: _retry_turn(*carry, prim, it % N_AGENTS), (s, resolved)
+    )
     return s.replace(prim=prim), ev

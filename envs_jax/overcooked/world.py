@@ -30,6 +30,8 @@ from envs_jax.overcooked.layouts import (
 N_TASKS = 7  # length of the task one-hot (task 6 = lettuce-onion-tomato salad)
 TASK_ID = 6
 OBS_DIM = 3 * N_FOODS + 2 * (N_OBJECTS - N_FOODS) + N_TASKS  # 32
+_SEVENTHS = (np.arange(N) / N).astype(np.float32)  # cell coordinate k -> k/7 (as the original's float64, rounded)
+_THIRDS = (np.arange(4) / 3).astype(np.float32)  # chop count -> chop/3
 
 
 @struct.dataclass
@@ -151,8 +153,10 @@ def belief_maps(layout: Layout, s: OvercookedState) -> chex.Array:
 
 def _features(s: OvercookedState, visible: chex.Array) -> chex.Array:
     """The 32-value layout of SPEC §9 for objects marked ``visible`` (bool[..., 11])."""
-    xy = s.pos.astype(jnp.float32) / N  # [11, 2]
-    chop = s.chop.astype(jnp.float32) / 3.0
+    # Table lookups rather than divisions, so that every compiled program yields the same floats
+    # (XLA may turn x / 7 into x * (1/7), which differs in the last bit).
+    xy = jnp.asarray(_SEVENTHS)[s.pos]  # [11, 2]
+    chop = jnp.asarray(_THIRDS)[s.chop]
     food = jnp.concatenate([xy[:N_FOODS], chop[:, None]], axis=1)  # [3, 3]
     vis = visible[..., :, None]
     foods = jnp.where(vis[..., :N_FOODS, :], food, 0.0).reshape(*visible.shape[:-1], -1)
