@@ -60,6 +60,12 @@ class WarehouseConfig:
     ``move_noise_std``/``fetch_duration_noise`` are the reference's optional noise (off in
     every experiment). ``done_at_horizon`` and ``arrival_exit_on_go_tr`` reproduce the
     variant-E quirks (SPEC §12.1, §12.9); setting them to False in E gives the corrected env.
+
+    Episode end: ``terminated`` is the reference's own ``done`` — every human has received
+    tool 2, or, with ``done_at_horizon`` (E), the step counter reaching ``horizon``: the E
+    learners were trained with that time-out as a true terminal (no bootstrap), which is how
+    WTD-Q was published. ``truncated`` (set by ``MacroEnv``) is the runner's cut at
+    ``horizon`` when the env did not terminate (A–D, or E with ``done_at_horizon=False``).
     ``check_every_pass=True`` corrects a D/E quirk the SPEC does not list: the 3-robot code
     never dooms a pass to robot 2 at its start (SPEC §5.2's first check), so such a pass is
     only judged when it ends (a robot arriving during the pass still gets the tool).
