@@ -49,9 +49,12 @@ def cmd_train(args) -> int:
     from jaxmac.config import scenario_config
     from jaxmac.run import default_out_dir, enable_compilation_cache, resume_run, train_run
 
+    from jaxmac.workers import is_worker_run, resume_workers, train_workers
+
     enable_compilation_cache()
     if args.resume:
-        summary = resume_run(args.resume, progress=not args.no_progress)
+        resume = resume_workers if is_worker_run(args.resume) else resume_run
+        summary = resume(args.resume, progress=not args.no_progress)
         out = args.resume
     else:
         config = scenario_config(args.scenario, tiny=args.tiny)
@@ -59,7 +62,10 @@ def cmd_train(args) -> int:
             config = config.override(episodes=args.episodes)
         config = config.override_strings(args.set)
         out = args.out or default_out_dir(config)
-        summary = train_run(config, args.seeds, out, progress=not args.no_progress)
+        if args.workers > 1:
+            summary = train_workers(config, args.seeds, out, args.workers, progress=not args.no_progress)
+        else:
+            summary = train_run(config, args.seeds, out, progress=not args.no_progress)
     if summary is not None:
         print(f"run folder: {out}")
         print(f"final greedy return ({summary['scenario']}, gamma={summary['discount']}): "
@@ -102,6 +108,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--tiny", action="store_true", help="tiny networks and budgets (smoke runs)")
     p.add_argument("--out", default=None, help="run folder (default: runs/SCENARIO-ALGO-TIME)")
     p.add_argument("--resume", default=None, metavar="RUN_DIR", help="continue a killed run")
+    p.add_argument("--workers", type=int, default=1,
+                   help="processes, each vmapping its share of the seeds (one JAX process uses about one core)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_train)
 
@@ -119,7 +127,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     try:
         return args.func(args)
-    except ValueError as err:
+    except (ValueError, RuntimeError) as err:
         print(f"jaxmac: {err}", file=sys.stderr)
         return 2
 

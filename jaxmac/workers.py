@@ -1,0 +1,159 @@
+"""Several training processes on one machine (``jaxmac train --workers N``).
+
+One JAX process keeps about one CPU core busy, so N processes each ``vmap`` their share of the
+seeds into ``RUN/worker{k}`` (an ordinary run folder, resumable on its own); this process
+shows one progress bar and, when all are done, merges their metrics, summaries and curve
+into ``RUN``. Across machines or accelerators scale with ``jax.sharding`` instead.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import subprocess
+import sys
+import time
+from typing import Any
+
+from jaxmac.config import TrainConfig
+
+
+def split_seeds(seeds: int, workers: int) -> list[tuple[int, int]]:
+    """(seed_offset, count) per worker, counts differing by at most one."""
+    if workers < 1 or workers > seeds:
+        raise ValueError(f"workers={workers} must be between 1 and seeds={seeds}")
+    base, extra = divmod(seeds, workers)
+    out, offset = [], 0
+    for k in range(workers):
+        count = base + (k < extra)
+        out.append((offset, count))
+        offset += count
+    return out
+
+
+def _worker_dirs(out_dir: str, workers: int) -> list[str]:
+    return [os.path.join(out_dir, f"worker{k}") for k in range(workers)]
+
+
+def train_workers(config: TrainConfig, seeds: int, out_dir: str, workers: int, progress: bool = True) -> dict:
+    """Train ``seeds`` seeds in ``workers`` processes and merge the results into ``out_dir``."""
+    if os.path.exists(os.path.join(out_dir, "config.json")):
+        raise ValueError(f"{out_dir} already holds a run; use --resume {out_dir} or another --out")
+    os.makedirs(out_dir, exist_ok=True)
+    shares = split_seeds(seeds, workers)
+    with open(os.path.join(out_dir, "config.json"), "w") as f:
+        json.dump({"config": config.to_dict(), "seeds": seeds, "workers": workers, "shares": shares}, f, indent=2)
+    jobs = []
+    for d, (offset, count) in zip(_worker_dirs(out_dir, workers), shares):
+        os.makedirs(d, exist_ok=True)
+        with open(os.path.join(d, "job.json"), "w") as f:
+            json.dump({"config": config.to_dict(), "seeds": count, "seed_offset": offset}, f)
+        jobs.append(d)
+    return _run_and_merge(out_dir, jobs, resume=False, progress=progress, total_episodes=config.episodes * seeds)
+
+
+def resume_workers(out_dir: str, progress: bool = True) -> dict:
+    with open(os.path.join(out_dir, "config.json")) as f:
+        meta = json.load(f)
+    jobs = _worker_dirs(out_dir, meta["workers"])
+    return _run_and_merge(out_dir, jobs, resume=True, progress=progress,
+                          total_episodes=meta["config"]["episodes"] * meta["seeds"])
+
+
+def is_worker_run(out_dir: str) -> bool:
+    path = os.path.join(out_dir, "config.json")
+    if not os.path.exists(path):
+        return False
+    with open(path) as f:
+        return "workers" in json.load(f)
+
+
+def _episodes_done(job_dir: str) -> int:
+    """Episodes trained so far in a worker folder (from its metrics.csv), summed over its seeds."""
+    path = os.path.join(job_dir, "metrics.csv")
+    if not os.path.exists(path):
+        return 0
+    last: dict[str, int] = {}
+    with open(path, newline="") as f:
+        for row in csv.DictReader(f):
+            last[row["seed"]] = int(row["episodes"])
+    return sum(last.values())
+
+
+def _run_and_merge(out_dir: str, jobs: list[str], resume: bool, progress: bool, total_episodes: int) -> dict:
+    from tqdm import tqdm
+
+    start = time.perf_counter()
+    procs = []
+    for d in jobs:
+        if os.path.exists(os.path.join(d, "summary.json")):
+            continue  # this worker had finished before the interruption
+        cmd = [sys.executable, "-m", "jaxmac.workers", d] + (["--resume"] if resume else [])
+        log = open(os.path.join(d, "worker.log"), "a")
+        procs.append((subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT), log, d))
+    bar = tqdm(total=total_episodes, unit="ep", desc=f"{len(jobs)} workers", disable=not progress,
+               dynamic_ncols=True)
+    while any(p.poll() is None for p, _, _ in procs):
+        time.sleep(2.0)
+        bar.n = sum(_episodes_done(d) for d in jobs)
+        bar.refresh()
+    bar.n = sum(_episodes_done(d) for d in jobs)
+    bar.close()
+    failed = [(d, p.returncode) for p, log, d in procs if p.returncode != 0]
+    for _, log, _ in procs:
+        log.close()
+    if failed:
+        raise RuntimeError(f"worker(s) failed: {failed}; see worker.log in each folder; "
+                           f"jaxmac train --resume {out_dir} continues")
+    return merge(out_dir, jobs, time.perf_counter() - start)
+
+
+def merge(out_dir: str, jobs: list[str], wall_seconds: float) -> dict[str, Any]:
+    """Concatenate the workers' metrics and summaries (ordered by seed) and plot the curve."""
+    from jaxmac.plotting import plot_learning_curve
+
+    summaries = []
+    rows: list[list[str]] = []
+    header = None
+    for d in jobs:
+        with open(os.path.join(d, "summary.json")) as f:
+            summaries.append(json.load(f))
+        with open(os.path.join(d, "metrics.csv"), newline="") as f:
+            reader = csv.reader(f)
+            header = next(reader)
+            rows.extend(reader)
+    with open(os.path.join(out_dir, "metrics.csv"), "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(header)
+        w.writerows(rows)
+    first = summaries[0]
+    summary = {k: first[k] for k in ("scenario", "algorithm", "episodes", "discount", "optimal_return")}
+    for key in ("final_greedy_return", "final_greedy_return_undiscounted"):
+        summary[key] = [v for s in summaries for v in s[key]]
+        summary[key + "_mean"] = sum(summary[key]) / len(summary[key])
+    summary.update(seeds=len(summary["final_greedy_return"]), workers=len(jobs), wall_seconds=wall_seconds)
+    with open(os.path.join(out_dir, "summary.json"), "w") as f:
+        json.dump(summary, f, indent=2)
+    plot_learning_curve(os.path.join(out_dir, "metrics.csv"), os.path.join(out_dir, "curve.png"),
+                        f"{summary['algorithm']} on {summary['scenario']}", summary["optimal_return"])
+    return summary
+
+
+def _main(argv: list[str]) -> int:
+    """Worker entry point: ``python -m jaxmac.workers JOB_DIR [--resume]``."""
+    from jaxmac.run import enable_compilation_cache, resume_run, train_run
+
+    enable_compilation_cache()
+    job_dir = argv[0]
+    if "--resume" in argv and os.path.exists(os.path.join(job_dir, "config.json")):
+        resume_run(job_dir, progress=False)
+        return 0
+    with open(os.path.join(job_dir, "job.json")) as f:
+        job = json.load(f)
+    train_run(TrainConfig(**job["config"]), job["seeds"], job_dir, seed_offset=job["seed_offset"], progress=False)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(_main(sys.argv[1:]))
