@@ -244,7 +244,7 @@ def test_rewards_truncation_and_termination(env, random_rollouts):
 # --- scripted policy: the learning ceiling ----------------------------------------------------------
 
 
-SCRIPTED = {"A": (40, 226.0), "B": (54, 224.6), "C": (54, 224.6)}  # steps to the delivery, return
+SCRIPTED = {"A": (35, 226.5), "B": (44, 225.6), "C": (44, 225.6)}  # steps to the delivery, return
 
 
 @pytest.mark.parametrize("map_name", ["A", "B", "C"])

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import functools
 import json
-from typing import Mapping
+from collections.abc import Mapping
 
 import jax
 import jax.numpy as jnp
@@ -34,7 +34,7 @@ def _detects(data: Mapping[str, np.ndarray]) -> bool:
     return "s_pomap" in data and "s_knife_hold" in data and "meta_json" in data
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def replayer(map_type: str, horizon: int):
     """(env, jitted replay) for one map, cached so that re-checking a file does not recompile.
 
@@ -69,7 +69,7 @@ def trace_state(data: Mapping[str, np.ndarray], rows: np.ndarray, t: np.ndarray)
     """``EnvState`` (numpy leaves, batched) of the recorded states ``rows``, at episode step ``t``."""
     from envs_jax.overcooked.world import OvercookedState
 
-    i32 = lambda k: np.asarray(data[k][rows], np.int32)  # noqa: E731
+    i32 = lambda k: np.asarray(data[k][rows], np.int32)
     n = len(rows)
     core = OvercookedState(
         pos=i32("s_pos"),
@@ -156,7 +156,7 @@ def _to_episodes(flat: dict, ep: np.ndarray, step: np.ndarray, n_ep: int, max_le
 
 def check(path: str, data: Mapping[str, np.ndarray]) -> FileReport:
     meta = json.loads(str(data["meta_json"]))
-    env, replay = replayer(str(meta["map_type"]), int(meta["horizon"]))
+    _, replay = replayer(str(meta["map_type"]), int(meta["horizon"]))
     ep_len = data["ep_len"].astype(np.int64)
     n_ep, max_len = len(ep_len), int(ep_len.max())
     ep = np.repeat(np.arange(n_ep), ep_len)

@@ -34,4 +34,4 @@ def _build(match, overrides) -> Overcooked:
 
 register("overcooked", r"overcooked-(.*)", _VALID, _build)
 
-__all__ = ["Overcooked", "OvercookedConfig", "OvercookedState", "MAP_NAMES"]
+__all__ = ["MAP_NAMES", "Overcooked", "OvercookedConfig", "OvercookedState"]

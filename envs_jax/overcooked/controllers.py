@@ -7,7 +7,7 @@ All agents are handled at once (arrays over the 3 agents); the planner runs once
 
 from __future__ import annotations
 
-from typing import Callable
+from collections.abc import Callable
 
 import chex
 import jax.numpy as jnp
@@ -19,7 +19,6 @@ from envs_jax.overcooked.layouts import (
     COUNTER,
     DIRS,
     FLOOR,
-    KNIFE_CELLS,
     K_CHOP,
     K_COUNTER,
     K_DELIVER,
@@ -27,12 +26,13 @@ from envs_jax.overcooked.layouts import (
     K_GET,
     K_KNIFE,
     K_STAY,
-    N,
+    KNIFE_CELLS,
     N_AGENTS,
     N_FOODS,
     PLATE1_K,
     STAY,
     Layout,
+    N,
 )
 from envs_jax.overcooked.world import OvercookedState, flat, in_view, manhattan, same
 

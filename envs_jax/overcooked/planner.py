@@ -168,7 +168,7 @@ def plan_exact(
 
 
 class _Entry:
-    __slots__ = ("f", "p", "cell", "first", "g")
+    __slots__ = ("cell", "f", "first", "g", "p")
 
     def __init__(self, f, p, cell, first, g):
         self.f, self.p, self.cell, self.first, self.g = f, p, cell, first, g

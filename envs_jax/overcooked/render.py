@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from envs_jax.core import EnvState
-from envs_jax.overcooked.layouts import AGENT0_K, DELIVERY, KNIFE, N, N_AGENTS, N_ITEMS, PLATE1_K
+from envs_jax.overcooked.layouts import AGENT0_K, DELIVERY, KNIFE, N_AGENTS, N_ITEMS, PLATE1_K, N
 
 _FOOD = "tlo"
 

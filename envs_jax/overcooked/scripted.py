@@ -7,12 +7,15 @@ re-taken whenever an agent is free, and agents are decided one after the other (
 over agents) so that later ones see what earlier ones just claimed.
 
 Protocol:
-* map A (open room): any empty-handed agent fetches an unclaimed food for a free knife, puts it
-  on the knife and chops it; when every food is on its way, one agent fetches plate 1 and
-  collects the chopped foods (the chopper steps aside), then delivers;
+* map A (open room): an empty-handed agent fetches an unclaimed food when a knife is (or will
+  be) free for it, puts it on an empty knife and chops it; an agent with nothing else to do
+  fetches plate 1 and collects every chopped food (choppers leave or step aside), then
+  delivers. Idle agents step aside when a teammate walks into them (the planner ignores agents
+  and macro-actions never time out, so an idle agent on a path would block it for good), and
+  agents walk towards items they cannot see yet;
 * maps B and C (split by the counter column): agent 2 (the runner, on the food side) carries the
-  three foods and then plate 1 to the middle counters; agents 1 and 3 (the kitchen side) run the
-  map-A protocol on whatever lies on the middle counters. On C the runner ignores the opening.
+  tomato, the lettuce, plate 1 and the onion to the middle counters; agents 1 and 3 run the
+  map-A protocol on what lies on the counters. On C nobody uses the opening.
 
 Used as the learning ceiling in the report and checked by ``tests/test_overcooked.py``.
 """
@@ -24,10 +27,11 @@ import jax
 import jax.numpy as jnp
 
 from envs_jax.core import EnvState
-from envs_jax.overcooked.world import belief_maps
 from envs_jax.overcooked.layouts import AGENT0_K, DIRS, KNIFE_CELLS, N_AGENTS, N_FOODS, N_ITEMS, PLATE1_K
+from envs_jax.overcooked.world import belief_maps
 
 RUNNER = 1  # agent 2 carries things across the counter on maps B/C
+RUNNER_ORDER = (0, 1, PLATE1_K, 2)  # tomato, lettuce, plate 1, onion
 
 
 def scripted_actions(env, state: EnvState) -> chex.Array:
@@ -38,7 +42,7 @@ def scripted_actions(env, state: EnvState) -> chex.Array:
     split = "go to counter" in ids
     get_item = jnp.array([ids["get tomato"], ids["get lettuce"], ids["get onion"], ids["get plate 1"], ids["get plate 2"]])
     go_knife = jnp.array([ids["go to knife 1"], ids["go to knife 2"]])
-    right, up, down = ids["right"], ids["up"], ids["down"]
+    right, left, up, down = ids["right"], ids["left"], ids["up"], ids["down"]
     stay, chop_m, deliver = ids["stay"], ids["chop"], ids["deliver"]
 
     me_all = core.pos[AGENT0_K:]
@@ -58,7 +62,7 @@ def scripted_actions(env, state: EnvState) -> chex.Array:
     knife_chopped = knife_food & ~knife_unchopped
     access = jnp.asarray(KNIFE_CELLS) + jnp.array([0, 1])  # the floor cell next to each knife
     at_access = jnp.all(me_all[:, None, :] == access[None], -1)  # [3 agents, 2 knives]
-    plate_holder = jnp.any((core.hold >= PLATE1_K))
+    plate_holder = jnp.any(core.hold >= PLATE1_K)
     # Busy agents' running macro-actions count as claims.
     busy = ~state.mac_done
     running = jnp.where(busy, state.mac, -1)
@@ -84,6 +88,14 @@ def scripted_actions(env, state: EnvState) -> chex.Array:
         my_access = at_access[i]
         in_corridor = jnp.any(my_access) | jnp.all(me == jnp.array([3, 1]))
 
+        def look_at(k):
+            """Direction macro towards item k, to bring it into view: a free neighbouring cell
+            that gets closer (rows first)."""
+            dx, dy = core.pos[k, 0] - me[0], core.pos[k, 1] - me[1]
+            free = pm[i, (me[0] + dirs[:4, 0]) * 7 + me[1] + dirs[:4, 1]] == 0  # right, down, left, up
+            options = jnp.array([dx < 0, dx > 0, dy < -1, dy > 1]) & free[jnp.array([3, 1, 2, 0])]
+            return jnp.where(jnp.any(options), jnp.array([up, down, left, right])[jnp.argmax(options)], stay)
+
         # Holding something.
         h_food = (h >= 0) & (h < N_FOODS)
         h_chopped = h_food & chopped[jnp.clip(h, 0, N_ITEMS - 1)]
@@ -93,15 +105,17 @@ def scripted_actions(env, state: EnvState) -> chex.Array:
         f_collect = jnp.argmax(to_collect)
         loose_plate = loose & (items >= PLATE1_K) & knows & reachable(i, items)
         p_get = jnp.argmax(loose_plate)
+        unseen_chopped = chopped & ~plated & (held_by < 0) & ~knows
         a_hold = jnp.select(
             [
                 h_food & ~h_chopped & any_free_knife,
                 h_chopped & jnp.any(loose_plate),
                 (h >= PLATE1_K) & plate_full,
                 (h >= PLATE1_K) & jnp.any(to_collect),
+                (h >= PLATE1_K) & jnp.any(unseen_chopped),
                 in_corridor,
             ],
-            [go_knife[k_free], get_item[p_get], deliver, get_item[f_collect], right],
+            [go_knife[k_free], get_item[p_get], deliver, get_item[f_collect], look_at(jnp.argmax(unseen_chopped)), right],
             stay,
         )
 
@@ -112,24 +126,28 @@ def scripted_actions(env, state: EnvState) -> chex.Array:
         k_unatt = jnp.argmax(unattended)
         food_ok = ok_item & (items < N_FOODS) & ~chopped
         f_get = jnp.argmax(food_ok)
+        # Fetch a food only for a knife that is (or will be, once its chopped food is collected)
+        # free and not already promised to a food in someone's hands or on its way.
+        slots = jnp.sum((knife_content < 0) | knife_chopped)
+        demand = jnp.sum(claim_item[:N_FOODS] & ~chopped[:N_FOODS] & (on_knife[:N_FOODS] < 0))
+        fetch = jnp.any(food_ok) & (slots > demand)
         want_plate = ~plate_holder & ~jnp.any(claim_item[PLATE1_K:]) & jnp.any(loose_plate)
         # A food or plate we cannot see yet (stale belief): walk towards its row.
         wanted = loose & ~claim_item & reachable(i, items) & ~knows & ((items < N_FOODS) & ~chopped | (items >= PLATE1_K))
-        w = jnp.argmax(wanted)
-        look = jnp.where(core.pos[w, 0] < me[0], up, jnp.where(core.pos[w, 0] > me[0], down, stay))
+        look = look_at(jnp.argmax(wanted))
         a_empty = jnp.select(
             [
                 chop_here,
+                fetch,
                 jnp.any(take_here) & plate_holder,  # chopped food waits for the plate: make room
                 jnp.any(take_here) & want_plate,
                 jnp.any(take_here),
                 jnp.any(unattended),
-                jnp.any(food_ok) & any_free_knife,
                 want_plate,
                 jnp.any(wanted) & ~delivered,
                 in_corridor,
             ],
-            [chop_m, right, get_item[p_get], stay, go_knife[k_unatt], get_item[f_get], get_item[p_get], look, right],
+            [chop_m, get_item[f_get], right, get_item[p_get], stay, go_knife[k_unatt], get_item[p_get], look, right],
             stay,
         )
         a = jnp.where(h >= 0, a_hold, a_empty)
@@ -140,8 +158,12 @@ def scripted_actions(env, state: EnvState) -> chex.Array:
         side_free = pm[i, side[:, 0] * 7 + side[:, 1]] == 0
         a = jnp.where(pushed & jnp.any(side_free), dir_macro[jnp.argmax(side_free)], a)
         if split:
+            # Runner: tomato, lettuce, plate 1, onion (the third food waits for a knife anyway).
             runner_food = loose & ~claim_item & reachable(i, items) & ((items < N_FOODS) | (items == PLATE1_K))
-            a_runner = jnp.where(h >= 0, ids["go to counter"], jnp.where(jnp.any(runner_food), get_item[jnp.argmax(runner_food)], stay))
+            first = jnp.argmax(runner_food[jnp.asarray(RUNNER_ORDER)])
+            a_runner = jnp.where(
+                h >= 0, ids["go to counter"], jnp.where(jnp.any(runner_food), get_item[jnp.asarray(RUNNER_ORDER)[first]], stay)
+            )
             a = jnp.where(i == RUNNER, a_runner, a)
         a = jnp.where(state.mac_done[i], a, state.mac[i])
         # Claims for the agents decided after this one.

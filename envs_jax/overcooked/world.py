@@ -17,7 +17,6 @@ from envs_jax.overcooked.layouts import (
     AGENT0_K,
     COUNTER,
     INIT_POS,
-    N,
     N_AGENTS,
     N_FOODS,
     N_ITEMS,
@@ -25,6 +24,7 @@ from envs_jax.overcooked.layouts import (
     OBJECT_CODES,
     STAY,
     Layout,
+    N,
 )
 
 N_TASKS = 7  # length of the task one-hot (task 6 = lettuce-onion-tomato salad)
