@@ -31,14 +31,16 @@ from envs_jax.overcooked.layouts import (
     N_AGENTS,
     N_FOODS,
     N_ITEMS,
+    OBJECT_CODES,
     ONION,
     PLATE,
     PLATE1_K,
     STAY,
     TOMATO,
     Layout,
+    N,
 )
-from envs_jax.overcooked.world import OvercookedState, grid_code, same
+from envs_jax.overcooked.world import OvercookedState, loose_items
 
 
 @struct.dataclass
@@ -50,7 +52,34 @@ class Events:
     correct: chex.Array  # correct dish delivered (0/1): the episode terminates
 
 
-def _bundle(s: OvercookedState, obj: chex.Array) -> chex.Array:
+@struct.dataclass
+class _World:
+    """What the physics reads and changes; cells as flat indices (no reductions over (x, y)
+    pairs, which keeps XLA's fused loops few and wide)."""
+
+    cell: chex.Array  # i32[11] flat cell of every object
+    hold: chex.Array
+    plate_has: chex.Array
+    knife_hold: chex.Array
+    chop: chex.Array
+    deliv_hold: chex.Array
+
+
+_DIR_FLAT = DIRS[:, 0] * N + DIRS[:, 1]  # primitive action -> flat displacement
+_INIT_FLAT = INIT_POS[:, 0] * N + INIT_POS[:, 1]
+_KNIFE1_FLAT = int(KNIFE_CELLS[0, 0] * N + KNIFE_CELLS[0, 1])
+
+
+def _code_at(layout: Layout, w: _World, c: chex.Array) -> chex.Array:
+    """True grid code at flat cell ``c`` (SPEC §3.1; as ``world.grid_code``)."""
+    static = jnp.asarray(layout.static_grid.reshape(-1))[c]
+    item_here = loose_items(w) & (w.cell[:N_ITEMS] == c)
+    item_code = jnp.sum(jnp.where(item_here, jnp.asarray(OBJECT_CODES[:N_ITEMS]), 0))
+    code = jnp.where((static == COUNTER) & jnp.any(item_here), item_code, static)
+    return jnp.where(jnp.any(w.cell[AGENT0_K:] == c), AGENT, code)
+
+
+def _bundle(s: _World, obj: chex.Array) -> chex.Array:
     """bool[5]: item ``obj`` (−1 for none) and, if it is a plate, the foods on it."""
     k = jnp.arange(N_ITEMS)
     plate = jnp.clip(obj - PLATE1_K, 0, 1)
@@ -58,12 +87,12 @@ def _bundle(s: OvercookedState, obj: chex.Array) -> chex.Array:
     return (k == obj) | jnp.concatenate([foods, jnp.zeros((2,), bool)])
 
 
-def _agent_turn(layout: Layout, s: OvercookedState, ev: Events, resolved, prim, i):
+def _agent_turn(layout: Layout, s: _World, ev: Events, resolved, prim, i):
     """Process unresolved agent ``i`` with primitive action ``prim[i]`` (SPEC §5 (a)–(d))."""
     a = prim[i]
-    me = s.pos[AGENT0_K + i]
-    c = me + jnp.asarray(DIRS)[a]
-    code = grid_code(layout, s, c)
+    me = s.cell[AGENT0_K + i]
+    c = me + jnp.asarray(_DIR_FLAT)[a]
+    code = _code_at(layout, s, c)
     h = s.hold[i]
     holding = h >= 0
     is_plate_h = h >= PLATE1_K
@@ -72,20 +101,19 @@ def _agent_turn(layout: Layout, s: OvercookedState, ev: Events, resolved, prim, 
     act = a != STAY
 
     # (a) a teammate stands on c.
-    at_c = same(s.pos[AGENT0_K:], c)
-    j = jnp.argmax(at_c)
+    j = jnp.argmax(s.cell[AGENT0_K:] == c)
     bump_agent = act & (code == AGENT)
     j_free = ~resolved[j]
-    j_target = s.pos[AGENT0_K + j] + jnp.asarray(DIRS)[prim[j]]
-    swap = bump_agent & j_free & (prim[j] != STAY) & same(j_target, me)
+    j_target = s.cell[AGENT0_K + j] + jnp.asarray(_DIR_FLAT)[prim[j]]
+    swap = bump_agent & j_free & (prim[j] != STAY) & (j_target == me)
     defer = bump_agent & j_free & ~swap
     # (b) free floor.
     walk = act & (code == FLOOR)
 
     # Which food / plate / knife sits at c (valid only under the matching code).
     food_at = jnp.select([code == TOMATO, code == LETTUCE, code == ONION], [0, 1, 2], -1)
-    plate_at = jnp.where(same(s.pos[PLATE1_K], c), PLATE1_K, PLATE1_K + 1)
-    kn = jnp.where(same(jnp.asarray(KNIFE_CELLS[0]), c), 0, 1)
+    plate_at = jnp.where(s.cell[PLATE1_K] == c, PLATE1_K, PLATE1_K + 1)
+    kn = jnp.where(c == _KNIFE1_FLAT, 0, 1)
     e = s.knife_hold[kn]
     e_food = (e >= 0) & (e < N_FOODS)
     e_chopped = e_food & chopped[jnp.clip(e, 0, N_FOODS - 1)]
@@ -120,17 +148,17 @@ def _agent_turn(layout: Layout, s: OvercookedState, ev: Events, resolved, prim, 
         [food_at, plate_at, e, food_at],
         -1,
     )
-    new_me = jnp.where(walk, c, jnp.where(swap, s.pos[AGENT0_K + j], me))
-    mine_dest = jnp.where((walk | swap)[None], new_me, c)
+    new_me = jnp.where(walk, c, jnp.where(swap, s.cell[AGENT0_K + j], me))
+    mine_dest = jnp.where(walk | swap, new_me, c)
     mine_moves = walk | swap | put_counter | knife_put | food_to_plate | deliver_ok
-    dest = jnp.where((mine & mine_moves)[:, None], mine_dest, s.pos[:N_ITEMS])
-    dest = jnp.where((_bundle(s, fetched) | theirs)[:, None], me, dest)
+    dest = jnp.where(mine & mine_moves, mine_dest, s.cell[:N_ITEMS])
+    dest = jnp.where(_bundle(s, fetched) | theirs, me, dest)
     sent_back = mine & deliver_bad  # a wrong delivery returns everything to its initial cell
-    dest = jnp.where(sent_back[:, None], jnp.asarray(INIT_POS[:N_ITEMS]), dest)
-    pos = s.pos.at[:N_ITEMS].set(dest)
-    rows = jnp.arange(pos.shape[0])[:, None]
-    pos = jnp.where(swap & (rows == AGENT0_K + j), me, pos)
-    pos = jnp.where(rows == AGENT0_K + i, new_me, pos)
+    dest = jnp.where(sent_back, jnp.asarray(_INIT_FLAT[:N_ITEMS]), dest)
+    objects = jnp.arange(s.cell.shape[0])
+    cell = jnp.concatenate([dest, s.cell[N_ITEMS:]])
+    cell = jnp.where(swap & (objects == AGENT0_K + j), me, cell)
+    cell = jnp.where(objects == AGENT0_K + i, new_me, cell)
 
     # Chopping.
     chop_inc = knife_chop & (jnp.arange(N_FOODS) == e)
@@ -155,7 +183,7 @@ def _agent_turn(layout: Layout, s: OvercookedState, ev: Events, resolved, prim, 
     drops = put_counter | food_to_plate | knife_put | deliver_ok | deliver_bad
     agents = jnp.arange(N_AGENTS)
     hold = jnp.where(agents == i, jnp.select([picked >= 0, drops], [picked, -1], h), s.hold)
-    new_s = s.replace(pos=pos, hold=hold, plate_has=plate_has, knife_hold=knife_hold, chop=chop, deliv_hold=deliv_hold)
+    new_s = _World(cell=cell, hold=hold, plate_has=plate_has, knife_hold=knife_hold, chop=chop, deliv_hold=deliv_hold)
     ev = Events(
         chops=ev.chops + n_chops,
         wrong=ev.wrong + deliver_bad.astype(jnp.int32),
@@ -165,18 +193,17 @@ def _agent_turn(layout: Layout, s: OvercookedState, ev: Events, resolved, prim, 
     return new_s, ev, resolved
 
 
-def _retry_turn(s: OvercookedState, resolved, prim, i: int):
+def _retry_turn(s: _World, resolved, prim, i: int):
     """Agent ``i`` retries a move deferred in an earlier pass. Its target cell held a teammate, so
     it is floor: the agent walks in if it is free now, waits again if the teammate there has not
     moved yet, and gives up if it has (a swap would have happened in the first pass)."""
-    me = s.pos[AGENT0_K + i]
-    c = me + jnp.asarray(DIRS)[prim[i]]
-    at_c = same(s.pos[AGENT0_K:], c)
+    me = s.cell[AGENT0_K + i]
+    c = me + jnp.asarray(_DIR_FLAT)[prim[i]]
+    at_c = s.cell[AGENT0_K:] == c
     waiting = jnp.any(at_c & ~resolved)
     walk = ~resolved[i] & ~jnp.any(at_c)
-    pos = s.pos.at[:N_ITEMS].set(jnp.where((_bundle(s, s.hold[i]) & walk)[:, None], c, s.pos[:N_ITEMS]))
-    pos = jnp.where(walk & (jnp.arange(pos.shape[0])[:, None] == AGENT0_K + i), c, pos)
-    return s.replace(pos=pos), resolved | (~waiting & (jnp.arange(N_AGENTS) == i))
+    moves = jnp.concatenate([_bundle(s, s.hold[i]), jnp.arange(N_ITEMS, s.cell.shape[0]) == AGENT0_K + i])
+    return s.replace(cell=jnp.where(walk & moves, c, s.cell)), resolved | (~waiting & (jnp.arange(N_AGENTS) == i))
 
 
 def physics(layout: Layout, s: OvercookedState, prim: chex.Array) -> tuple[OvercookedState, Events]:
@@ -189,6 +216,8 @@ def physics(layout: Layout, s: OvercookedState, prim: chex.Array) -> tuple[Overc
     zero = jnp.zeros((), jnp.int32)
     ev = Events(zero, zero, zero)
     resolved = jnp.zeros((N_AGENTS,), bool)
+    full = s
+    s = _World(s.pos[:, 0] * N + s.pos[:, 1], s.hold, s.plate_has, s.knife_hold, s.chop, s.deliv_hold)
 
     def first_pass(i, carry):
         s, ev, resolved = carry
@@ -201,4 +230,7 @@ def physics(layout: Layout, s: OvercookedState, prim: chex.Array) -> tuple[Overc
     s, resolved = jax.lax.fori_loop(
         0, 2 * N_AGENTS, lambda it, carry: _retry_turn(*carry, prim, it % N_AGENTS), (s, resolved)
     )
-    return s.replace(prim=prim), ev
+    return full.replace(
+        pos=jnp.stack([s.cell // N, s.cell % N], axis=-1), hold=s.hold, plate_has=s.plate_has,
+        knife_hold=s.knife_hold, chop=s.chop, deliv_hold=s.deliv_hold, prim=prim,
+    ), ev
