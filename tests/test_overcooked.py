@@ -91,24 +91,24 @@ def test_conformance_reports_a_corrupted_trace(tmp_path, capsys):
 
 
 def _random_belief_maps(rng, n, floor):
-    """Belief maps on a layout: up to 3 phantom items on the floor, agents at s and two mates.
+    """Belief maps as the env builds them: background, five items (mostly on counters, up to three
+    on the floor: phantoms), two teammates and the own cell s on the floor.
 
-    Returns (pm int[n, 49], s, t, mates int[n, 2]); targets are any cell, often a non-floor one."""
-    cells = np.flatnonzero(floor)
-    pms, starts, targets, mates = [], [], [], []
+    Returns (pm int[n, 49], s, t, mates int[n, 2], items int[n, 5]); targets are any cell."""
+    cells, walls = np.flatnonzero(floor), np.flatnonzero(~floor)
+    out = []
     for _ in range(n):
+        items = rng.choice(walls, 5)
+        k = rng.integers(0, 4)
+        items[:k] = rng.choice(cells, k)
+        mates, s = rng.choice(cells, 2), rng.choice(cells)
         pm = np.where(floor, 0, 1)
-        pm[rng.choice(cells, rng.integers(0, 4))] = 3  # phantom items
-        m = rng.choice(cells, 2)
-        s = rng.choice(cells)
-        pm[m] = 2
+        pm[items] = 3
+        pm[mates] = 2
         pm[s] = 2
         t = rng.integers(49) if rng.random() < 0.7 else rng.choice(np.flatnonzero(pm != 0))
-        pms.append(pm)
-        starts.append(s)
-        targets.append(t)
-        mates.append(m)
-    return np.array(pms), np.array(starts), np.array(targets), np.array(mates)
+        out.append((pm, s, t, mates, items))
+    return tuple(np.array(x) for x in zip(*out))
 
 
 def test_search_matches_a_plain_heapq_search():
@@ -117,7 +117,7 @@ def test_search_matches_a_plain_heapq_search():
     floor = np.zeros((7, 7), bool)
     floor[1:6, 1:6] = True
     floor[rng.random((7, 7)) < 0.1] = False  # some extra walls
-    pms, s, t, _ = _random_belief_maps(rng, N_LANES, floor.reshape(-1))
+    pms, s, t, _, _ = _random_belief_maps(rng, N_LANES, floor.reshape(-1))
     ref = [planner.plan_reference(pm.reshape(7, 7), divmod(int(a), 7), divmod(int(b), 7)) for pm, a, b in zip(pms, s, t)]
     got = search(jnp.asarray((pms == 0) | (pms == 2)), jnp.asarray(pms == 2), s, t)
     np.testing.assert_array_equal(np.asarray(got), ref)
@@ -130,10 +130,10 @@ def test_table_planner_equals_the_search_batched_and_unbatched():
     env = envs_jax.make("overcooked-C")
     rng = np.random.default_rng(1)
     floor = env.layout.floor.reshape(-1)
-    pms, s, t, mates = _random_belief_maps(rng, N_LANES, floor)
+    pms, s, t, mates, items = _random_belief_maps(rng, N_LANES, floor)
     passable, agent = (pms == 0) | (pms == 2), pms == 2
     expected = np.asarray(search(passable, agent, s, t))
-    args = [x.reshape(256, 3, *x.shape[1:]) for x in (passable, agent, s, t, np.ones(len(s), bool), mates)]
+    args = [x.reshape(256, 3, *x.shape[1:]) for x in (s, t, mates, items, np.ones(len(s), bool))]
     batched = jax.jit(jax.vmap(env._plan))(*args)
     np.testing.assert_array_equal(np.asarray(batched).reshape(-1), expected)
     unbatched = jax.jit(env._plan)

@@ -13,6 +13,7 @@ import chex
 import jax.numpy as jnp
 import numpy as np
 
+from envs_jax.overcooked import world
 from envs_jax.overcooked.layouts import (
     AGENT,
     AGENT0_K,
@@ -29,6 +30,7 @@ from envs_jax.overcooked.layouts import (
     KNIFE_CELLS,
     N_AGENTS,
     N_FOODS,
+    N_ITEMS,
     PLATE1_K,
     STAY,
     Layout,
@@ -43,7 +45,7 @@ _CELL_1_0 = np.array([1, 0], np.int32)
 _FLAT_2_1 = 2 * N + 1
 _TEAMMATES = np.array([[j for j in range(N_AGENTS) if j != i] for i in range(N_AGENTS)], np.int32)
 
-# planner(passable bool[3, 49], agent bool[3, 49], s i32[3], t i32[3], enabled bool[3], mates i32[3, 2]) -> i32[3]
+# planner(s i32[3], t i32[3], mates i32[3, 2], items i32[3, 5], enabled bool[3]) -> i32[3] (plan_table)
 Planner = Callable[..., chex.Array]
 
 
@@ -59,12 +61,12 @@ def _unchopped_food(s: OvercookedState, item: chex.Array) -> chex.Array:
 
 
 def controllers(
-    layout: Layout, s: OvercookedState, pm: chex.Array, mac: chex.Array, planner: Planner, radius: int
+    layout: Layout, s: OvercookedState, mac: chex.Array, planner: Planner, radius: int
 ) -> tuple[chex.Array, chex.Array, chex.Array]:
     """Primitive actions of all agents (SPEC §8.2).
 
-    Args: ``pm`` int32[3, 49] belief maps, ``mac`` int32[3] macro-actions being executed,
-    ``planner`` answers for the 3 agents at once (``plan_table.make_planner``).
+    Args: ``mac`` int32[3] macro-actions being executed, ``planner`` answers for the 3 agents at
+    once (``plan_table.make_planner``). Belief maps are read only where a rule looks.
     Returns (prim int32[3], done bool[3], chop_ctr int32[3]).
     """
     mac = jnp.clip(mac, 0, layout.num_actions - 1)
@@ -87,22 +89,34 @@ def controllers(
     chop_ctr = jnp.where((kind == K_CHOP) & chop_any & (ctr >= 3), 0, jnp.where(kind == K_CHOP, ctr, s.chop_ctr))
     chop_a = jnp.where(chop_any, chop_dir, STAY)
 
-    # direction macros: step only onto believed-free floor.
+    # The belief-map cells the rules read: the direction macro's next cell, (2,1), the believed
+    # target cell and the middle counters.
     step_cell = flat(me + dirs[jnp.clip(direction, 0, 3)])
-    dir_a = jnp.where(pm[rows, step_cell] == FLOOR, direction, STAY)
+    belief_target = s.belief[rows, jnp.clip(obj, 0)]  # [3, 2]
+    cc = jnp.asarray(layout.counter_cells).reshape(-1, 2)
+    n_cc = cc.shape[0]
+    queries = jnp.concatenate(
+        [step_cell[:, None], jnp.full((N_AGENTS, 1), _FLAT_2_1), flat(belief_target)[:, None],
+         jnp.broadcast_to(flat(cc), (N_AGENTS, n_cc))], axis=1,
+    )
+    codes = world.belief_codes_at(layout, s, queries)  # [3, 3 + C]
+
+    # direction macros: step only onto believed-free floor.
+    dir_a = jnp.where(codes[:, 0] == FLOOR, direction, STAY)
 
     # deliver's hard-coded rule: at (1,1) with an agent believed at (2,1), step right.
-    agent_below_1_1 = pm[:, _FLAT_2_1] == AGENT
+    agent_below_1_1 = codes[:, 1] == AGENT
     deliver_rule = (kind == K_DELIVER) & same(me, _CELL_1_1) & agent_below_1_1
 
     # Target cell: the believed cell of the target object, or the first believed-free middle counter.
-    target = s.belief[rows, jnp.clip(obj, 0)]  # [3, 2]
-    if len(layout.counter_cells):
-        cc = jnp.asarray(layout.counter_cells)
-        free = pm[:, flat(cc)] == COUNTER  # [3, C]
+    target, pm_t = belief_target, codes[:, 2]
+    if n_cc:
+        free = codes[:, 3:] == COUNTER  # [3, C]
         counter_found = jnp.any(free, axis=1)
-        counter_cell = cc[jnp.argmax(free, axis=1)]
-        target = jnp.where((kind == K_COUNTER)[:, None], counter_cell, target)
+        first_free = jnp.argmax(free, axis=1)
+        is_counter = kind == K_COUNTER
+        target = jnp.where(is_counter[:, None], cc[first_free], target)
+        pm_t = jnp.where(is_counter, COUNTER, pm_t)
     else:
         counter_found = jnp.zeros((N_AGENTS,), bool)
     t_flat = flat(target)
@@ -110,7 +124,6 @@ def controllers(
     adjacent = manhattan(me, target) == 1
     is_get_food = (kind == K_GET) & (obj < N_FOODS)
     plate_at_t = same(s.pos[PLATE1_K], target) | same(s.pos[PLATE1_K + 1], target)
-    pm_t = pm[rows, t_flat]
     food_in_plate = is_get_food & inview & plate_at_t  # rule 6.1
     knife_rule = same(target, _CELL_1_0) & same(me, _CELL_3_1) & agent_below_1_1  # rule 6.2
     under_agent = (pm_t == AGENT) & inview  # rule 6.3
@@ -119,9 +132,8 @@ def controllers(
         (kind == K_COUNTER) & counter_found
     )
 
-    passable = (pm == FLOOR) | (pm == AGENT)
     mates = flat(s.belief[rows[:, None], AGENT0_K + jnp.asarray(_TEAMMATES)])  # [3, 2]
-    plan = planner(passable, pm == AGENT, flat(me), t_flat, needs_plan, mates)
+    plan = planner(flat(me), t_flat, mates, flat(s.belief[:, :N_ITEMS]), needs_plan)
 
     # Rule 6.4 on arrival (adjacent before moving): the bump is the interaction, with exceptions.
     chopped_in_hand = (hold >= 0) & (hold < N_FOODS) & (s.chop[jnp.clip(hold, 0, N_FOODS - 1)] == 3)

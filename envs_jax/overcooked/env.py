@@ -18,11 +18,10 @@ from __future__ import annotations
 import dataclasses
 
 import chex
-import jax
 import jax.numpy as jnp
 
 from envs_jax.core import CoreStep, EnvSpec, EnvState, MacroEnv
-from envs_jax.overcooked import controllers, layouts, physics, plan_table, planner, world
+from envs_jax.overcooked import controllers, layouts, physics, plan_table, world
 from envs_jax.overcooked.world import OvercookedState
 
 
@@ -71,7 +70,7 @@ class Overcooked(MacroEnv[OvercookedState]):
         if fast_planner:
             self._plan = plan_table.make_planner(plan_table.build_table(map_name), self.layout.floor)
         else:  # the plain search for every agent (reference for tests)
-            self._plan = jax.vmap(lambda passable, agent, s, t, enabled, mates: planner.plan_exact(passable, agent, s, t, enabled))
+            self._plan = plan_table.make_exact_planner(self.layout.floor)
 
     # --- MacroEnv hooks -----------------------------------------------------------------------
     def _core_reset(self, key: chex.PRNGKey) -> OvercookedState:
@@ -81,8 +80,7 @@ class Overcooked(MacroEnv[OvercookedState]):
     def _core_step(self, key, core: OvercookedState, actions, free, mac) -> CoreStep:
         del key, free, mac  # deterministic; ``actions`` already are the running macro-actions
         radius = self.config.obs_radius
-        pm = world.belief_maps(self.layout, core)
-        prim, done, chop_ctr = controllers.controllers(self.layout, core, pm, actions, self._plan, radius)
+        prim, done, chop_ctr = controllers.controllers(self.layout, core, actions, self._plan, radius)
         nxt, ev = physics.physics(self.layout, core.replace(chop_ctr=chop_ctr), prim)
         nxt = nxt.replace(belief=world.update_beliefs(nxt, radius))
         done = done | controllers.post_step_done(self.layout, nxt, actions)

@@ -129,41 +129,64 @@ def _chunk(lanes: int) -> int:
     return int(min(64, max(4, lanes // 192)))
 
 
-def make_planner(table: PlanTable, floor: np.ndarray):
-    """The controllers' planner: ``plan(passable, agent, s, t, enabled, mates)`` for the 3 agents.
+def planner_masks(floor: np.ndarray, s, mates, items):
+    """(passable, agent) bool[49] of one agent's belief map, from its compact description: own
+    cell ``s``, teammates' believed cells ``mates`` [2], items' believed cells ``items`` [5] (all
+    flat). Items make floor cells impassable unless an agent is believed there too (SPEC §6)."""
+    cells = jnp.arange(N_CELLS)
+    agent = (cells == s) | jnp.any(cells[:, None] == mates[None, :], axis=1)
+    item = jnp.any(cells[:, None] == items[None, :], axis=1)
+    return jnp.asarray(floor.reshape(-1)) & (~item | agent), agent
 
-    Args (leading axis = agents): ``passable``/``agent`` bool[3, 49] from the belief maps,
-    ``s``/``t`` int32[3] flat cells, ``enabled`` bool[3] (who needs an answer), ``mates``
-    int32[3, 2] the teammates' believed cells. Returns int32[3] first moves, identical to
-    ``planner.plan_exact`` wherever ``enabled``.
+
+def make_exact_planner(floor: np.ndarray):
+    """``plan(s, t, mates, items, enabled)`` for the 3 agents by the search alone (reference)."""
+
+    def one(s, t, mates, items, enabled):
+        return planner.plan_exact(*planner_masks(floor, s, mates, items), s, t, enabled)
+
+    return jax.vmap(one)
+
+
+def make_planner(table: PlanTable, floor: np.ndarray):
+    """The controllers' planner: ``plan(s, t, mates, items, enabled)`` for the 3 agents.
+
+    Args (leading axis = agents, flat cells): ``s``/``t`` int32[3] own and target cells,
+    ``mates`` int32[3, 2] the teammates' believed cells, ``items`` int32[3, 5] the believed cells
+    of the five movable items, ``enabled`` bool[3] (who needs an answer). Returns int32[3] first
+    moves, identical to ``planner.plan_exact`` on the agents' belief maps wherever ``enabled``.
     """
     entries = jnp.asarray(table.entries)
     findex = jnp.asarray(table.floor_index)
-    cells = jnp.asarray(table.floor_cells)
     n_floor = table.n_floor
     n_pairs = n_floor * (n_floor + 1) // 2
-    bits = jnp.asarray(1 << np.arange(n_floor), jnp.int32)
-    del floor  # the table already encodes the layout
 
-    def lookup(passable, s, t, mates):
+    def exact(s, t, mates, items, enabled):  # one lane
+        return planner.plan_exact(*planner_masks(floor, s, mates, items), s, t, enabled)
+
+    def lookup(s, t, mates, items):
         """Table answer and whether it is valid, for lanes [L]."""
         si, a, b = findex[s], findex[mates[:, 0]], findex[mates[:, 1]]
         lo, hi = jnp.minimum(a, b), jnp.maximum(a, b)
         idx = (jnp.maximum(si, 0) * N_CELLS + t) * n_pairs + pair_index(jnp.maximum(lo, 0), jnp.maximum(hi, 0), n_floor)
         entry = entries[idx]
-        blocked = jnp.sum(jnp.where(passable[:, cells], 0, bits), axis=-1)  # phantom items on the floor
+        # Phantom items: believed on a floor cell where no agent is believed.
+        fi = findex[items]  # [L, 5]
+        under_agent = (items == s[:, None]) | (items == mates[:, :1]) | (items == mates[:, 1:])
+        bit = jnp.where((fi >= 0) & ~under_agent, jnp.left_shift(1, jnp.maximum(fi, 0)), 0)
+        blocked = jax.lax.reduce(bit, np.int32(0), jax.lax.bitwise_or, (1,))
         ok = (si >= 0) & (lo >= 0) & ((entry >> 3) & blocked == 0)
         return entry & 7, ok
 
-    def plan_lanes(passable, agent, s, t, enabled, mates):
-        first, ok = lookup(passable, s, t, mates)
+    def plan_lanes(s, t, mates, items, enabled):
+        first, ok = lookup(s, t, mates, items)
         need = enabled & ~ok
-        slow = jax.vmap(planner.plan_exact)(passable, agent, s, t, need)
+        slow = jax.vmap(exact)(s, t, mates, items, need)
         return jnp.where(need, slow, first)
 
-    def plan_compact(passable, agent, s, t, enabled, mates):
+    def plan_compact(s, t, mates, items, enabled):
         """Like ``plan_lanes`` for many lanes, searching only the lanes that need it, in chunks."""
-        first, ok = lookup(passable, s, t, mates)
+        first, ok = lookup(s, t, mates, items)
         need = enabled & ~ok
         lanes = s.shape[0]
         chunk = _chunk(lanes)
@@ -174,21 +197,21 @@ def make_planner(table: PlanTable, floor: np.ndarray):
             c, out = carry
             sel = jax.lax.dynamic_slice(order, (c * chunk,), (chunk,))
             take = lambda x: x.at[sel].get(mode="fill", fill_value=0)
-            res = jax.vmap(planner.plan_exact)(take(passable), take(agent), take(s), take(t), sel < lanes)
+            res = jax.vmap(exact)(take(s), take(t), take(mates), take(items), sel < lanes)
             return c + 1, out.at[sel].set(res, mode="drop")
 
         _, out = jax.lax.while_loop(lambda carry: carry[0] * chunk < n_need, body, (jnp.zeros((), jnp.int32), first))
         return out
 
     @jax.custom_batching.custom_vmap
-    def plan(passable, agent, s, t, enabled, mates):
-        return plan_lanes(passable, agent, s, t, enabled, mates)
+    def plan(s, t, mates, items, enabled):
+        return plan_lanes(s, t, mates, items, enabled)
 
     @plan.def_vmap
-    def _plan_batched(axis_size, in_batched, passable, agent, s, t, enabled, mates):
+    def _plan_batched(axis_size, in_batched, s, t, mates, items, enabled):
         args = [
             x if batched else jnp.broadcast_to(x, (axis_size, *x.shape))
-            for x, batched in zip((passable, agent, s, t, enabled, mates), in_batched)
+            for x, batched in zip((s, t, mates, items, enabled), in_batched)
         ]
         lanes = [x.reshape(-1, *x.shape[2:]) for x in args]
         return plan_compact(*lanes).reshape(axis_size, -1), True

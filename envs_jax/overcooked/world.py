@@ -153,6 +153,16 @@ def belief_maps(layout: Layout, s: OvercookedState) -> chex.Array:
     return jnp.where(own, AGENT, pm)
 
 
+def belief_codes_at(layout: Layout, s: OvercookedState, cells: chex.Array) -> chex.Array:
+    """int32[3, K]: ``belief_maps`` read only at flat ``cells`` int32[3, K] (agent i's own cells).
+
+    Much cheaper than building the maps when a controller needs a few cells."""
+    at = flat(s.belief)[:, None, :] == cells[:, :, None]  # [3, K, 11]
+    last = jnp.max(jnp.where(at, jnp.arange(N_OBJECTS), -1), axis=-1)
+    code = jnp.where(last >= 0, jnp.asarray(OBJECT_CODES)[jnp.maximum(last, 0)], jnp.asarray(layout.pm_background.reshape(-1))[cells])
+    return jnp.where(cells == flat(s.pos[AGENT0_K:])[:, None], AGENT, code)
+
+
 def _features(s: OvercookedState, visible: chex.Array) -> chex.Array:
     """The 32-value layout of SPEC §9 for objects marked ``visible`` (bool[..., 11])."""
     # Table lookups rather than divisions, so that every compiled program yields the same floats
