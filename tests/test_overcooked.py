@@ -15,6 +15,7 @@ import pytest
 import envs_jax
 from envs_jax.conformance.__main__ import main as conformance_main
 from envs_jax.overcooked import layouts, planner
+from envs_jax.overcooked.plan_table import build_table, make_exact_planner, pair_index
 from envs_jax.overcooked.scripted import scripted_actions
 from envs_jax.policies import uniform_random_actions
 
@@ -33,10 +34,6 @@ def env():
 def random_policy(key, ts):
     """Uniform over available actions for free agents; busy agents send junk (must be ignored)."""
     return jnp.where(ts.mac_done, uniform_random_actions(key, ts.avail_actions), -3)
-
-
-def state_ts(env, state):
-    return env.observe(state)
 
 
 def scan_rollout(env, key, n_steps, policy=None):
@@ -139,8 +136,10 @@ def test_table_planner_equals_the_search_batched_and_unbatched():
     unbatched = jax.jit(env._plan)
     for b in range(0, 256, 37):
         np.testing.assert_array_equal(np.asarray(unbatched(*(x[b] for x in args))), expected[3 * b: 3 * b + 3])
+    # The search-only planner of ``fast_planner=False`` builds the same belief maps.
+    search_only = jax.jit(jax.vmap(make_exact_planner(env.layout.floor)))(*args)
+    np.testing.assert_array_equal(np.asarray(search_only).reshape(-1), expected)
     # Both paths were exercised: most answers come from the table, some need the search.
-    from envs_jax.overcooked.plan_table import build_table, pair_index
 
     table = build_table("C")
     fi, n = table.floor_index, table.n_floor
@@ -162,7 +161,7 @@ def rollouts_a(env):
     keys = jax.random.split(jax.random.key(7), 33)
 
     def mixed(env, state, key, scripted):
-        return jnp.where(scripted, scripted_actions(env, state), random_policy(key, state_ts(env, state)))
+        return jnp.where(scripted, scripted_actions(env, state), random_policy(key, env.observe(state)))
 
     def lane(key, scripted):
         return scan_rollout(env, key, 200, policy=lambda e, st, k: mixed(e, st, k, scripted))

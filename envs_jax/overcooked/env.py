@@ -49,7 +49,10 @@ class OvercookedConfig:
 
 
 class Overcooked(MacroEnv[OvercookedState]):
-    """Macro-action Overcooked on one map; build it with ``envs_jax.make("overcooked-A")``."""
+    """Macro-action Overcooked on one map; build it with ``envs_jax.make("overcooked-A")``.
+
+    ``fast_planner=False`` plans by running the search for every agent at every step instead of
+    the precomputed table (same answers, much slower; for debugging)."""
 
     def __init__(self, map_name: str, config: OvercookedConfig = OvercookedConfig(), fast_planner: bool = True):
         name = f"overcooked-{map_name}"

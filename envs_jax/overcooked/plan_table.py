@@ -14,8 +14,8 @@ search's frontier) we run the search itself. Under ``vmap`` the fallback searche
 small chunks (``jax.custom_batching.custom_vmap``), so their cost does not scale with the batch.
 
 Building uses the fact that a teammate cell only matters if the search pushes it: answers without
-teammates, then with one, then the few pairs that still need their own search (about 1–2 s per
-map, once per process).
+teammates, then with one, then the pairs that still need their own search (~110k searches on
+map A; a few seconds per map, once per process; the table is 0.8–1.6 MB).
 """
 
 from __future__ import annotations
