@@ -201,6 +201,14 @@ def test_python_loop_of_jitted_steps_equals_the_batched_scan_ignores_keys_and_ne
     assert len(traces) == 1
 
 
+def test_nested_vmap_equals_flat_vmap(env, random_rollouts):
+    """vmap over seeds of vmap over envs (the planner's batching rule then runs nested)."""
+    keys, flat_ts, _ = random_rollouts
+    nested, _ = jax.jit(jax.vmap(jax.vmap(lambda k: scan_rollout(env, k, 200))))(keys[:8].reshape(2, 4))
+    for a, b in zip(jax.tree_util.tree_leaves(nested), jax.tree_util.tree_leaves(flat_ts)):
+        np.testing.assert_array_equal(np.asarray(a).reshape(8, *np.shape(a)[2:]), np.asarray(b)[:8])
+
+
 def test_obs_real_obs_macro_and_mac_done_are_consistent(random_rollouts):
     _, ts, _ = random_rollouts
     done = np.asarray(ts.mac_done)
