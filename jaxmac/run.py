@@ -185,7 +185,7 @@ def _loop(trainer, state, chunk, out_dir, meta, checkpoint_seconds, progress, st
     total = trainer.total_chunks
     episodes_per_chunk = trainer.rounds_per_chunk * config.num_envs
     bar = tqdm(total=total * episodes_per_chunk, initial=chunk * episodes_per_chunk, unit="ep",
-               desc=f"{config.scenario} x{meta['seeds']} seeds", disable=not progress, dynamic_ncols=True)
+               desc=f"{config.scenario}, {meta['seeds']} seeds (episodes per seed)", disable=not progress, dynamic_ncols=True)
     start = time.perf_counter()
     last_ckpt = time.perf_counter()
     last_eval = float("nan")
