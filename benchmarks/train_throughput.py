@@ -1,6 +1,7 @@
 """Training throughput of the compiled ToMacVF trainer, per seed and in total.
 
     python benchmarks/train_throughput.py --scenario boxpushing-6x6 [--seeds 1 4 8] [--workers 1 2] [--chunks 3]
+                                          [--set KEY=VALUE ...]
 
 For every (seeds, workers) pair, each worker process compiles ``vmap(train_chunk)`` over its
 share of the seeds (compile time reported apart) and then times ``--chunks`` chunks of the
@@ -22,7 +23,7 @@ import time
 ORIGINAL = {"boxpushing-6x6": (37.133, 875.7), "overcooked-A": (2.719, 546.8)}
 
 
-def measure(scenario: str, seeds: int, seed_offset: int, chunks: int) -> dict:
+def measure(scenario: str, seeds: int, seed_offset: int, chunks: int, assignments: list[str]) -> dict:
     """Compile and time the trainer in this process (one worker)."""
     import jax
     import jax.numpy as jnp
@@ -32,7 +33,7 @@ def measure(scenario: str, seeds: int, seed_offset: int, chunks: int) -> dict:
     from jaxmac.config import make_env, scenario_config
     from jaxmac.trainer import make_train
 
-    config = scenario_config(scenario)
+    config = scenario_config(scenario).override_strings(assignments)
     env = make_env(config)
     trainer = make_train(config, env, make_algorithm(config, env))
     keys = jax.vmap(jax.random.key)(jnp.arange(seed_offset, seed_offset + seeds))
@@ -54,11 +55,12 @@ def measure(scenario: str, seeds: int, seed_offset: int, chunks: int) -> dict:
             "episodes": episodes, "env_steps": steps}
 
 
-def run_workers(scenario: str, seeds: int, workers: int, chunks: int) -> list[dict]:
+def run_workers(scenario: str, seeds: int, workers: int, chunks: int, assignments: list[str]) -> list[dict]:
     """``workers`` concurrent processes, each measuring its share of the seeds."""
     share = [seeds // workers + (k < seeds % workers) for k in range(workers)]
     offsets = [sum(share[:k]) for k in range(workers)]
-    procs = [subprocess.Popen([sys.executable, __file__, "--child", scenario, str(s), str(o), str(chunks)],
+    procs = [subprocess.Popen([sys.executable, __file__, "--child", scenario, str(s), str(o), str(chunks),
+                              json.dumps(assignments)],
                               stdout=subprocess.PIPE, text=True) for s, o in zip(share, offsets) if s > 0]
     out = []
     for p in procs:
@@ -72,23 +74,29 @@ def run_workers(scenario: str, seeds: int, workers: int, chunks: int) -> list[di
 def main(argv=None) -> None:
     if argv is None and len(sys.argv) > 1 and sys.argv[1] == "--child":
         scenario, seeds, offset, chunks = sys.argv[2], int(sys.argv[3]), int(sys.argv[4]), int(sys.argv[5])
-        print(json.dumps(measure(scenario, seeds, offset, chunks)))
+        print(json.dumps(measure(scenario, seeds, offset, chunks, json.loads(sys.argv[6]))))
         return
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--scenario", default="boxpushing-6x6")
     p.add_argument("--seeds", type=int, nargs="+", default=[1, 4, 8])
     p.add_argument("--workers", type=int, nargs="+", default=[1, 2])
     p.add_argument("--chunks", type=int, default=3, help="timed chunks per worker (after compile and warm-up)")
+    p.add_argument("--set", dest="assignments", action="append", default=[], metavar="KEY=VALUE",
+                   help="config override, as in `jaxmac train --set` (repeatable)")
     args = p.parse_args(argv)
+    from jaxmac.config import scenario_config
+
+    scenario_config(args.scenario).override_strings(args.assignments)  # bad values fail here, not in a worker
     ref = ORIGINAL.get(args.scenario)
-    print(f"{args.scenario}: ToMacVF, paper configuration; rates over the timed chunks (compile apart)")
+    setting = ", ".join(args.assignments) or "paper configuration (DECISIONS D13)"
+    print(f"{args.scenario}: ToMacVF, {setting}; rates over the timed chunks (compile apart)")
     print(f"{'seeds':>5} {'workers':>7} {'compile s':>9} {'ep/s total':>10} {'ep/s/seed':>9} {'steps/s':>9} "
           f"{'ep/CPU-s':>9}" + ("  vs original (episodes per CPU-second)" if ref else ""))
     for seeds in args.seeds:
         for workers in args.workers:
             if workers > seeds:
                 continue
-            res = run_workers(args.scenario, seeds, workers, args.chunks)
+            res = run_workers(args.scenario, seeds, workers, args.chunks, args.assignments)
             wall = max(r["wall_s"] for r in res)
             episodes = sum(r["episodes"] for r in res)
             steps = sum(r["env_steps"] for r in res)
