@@ -11,10 +11,10 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import pathlib
 
 from jaxmac.config import scenario_config
+from jaxmac.plotting import mean_and_standard_error
 
 
 def _changed_settings(run_dir: pathlib.Path, scenario: str) -> str:
@@ -33,9 +33,8 @@ def table_rows(run_dirs: list[pathlib.Path]) -> list[str]:
     for run_dir in run_dirs:
         summary = json.loads((run_dir / "summary.json").read_text())
         values = summary["final_greedy_return"]
-        mean = sum(values) / len(values)
-        se = (f"{math.sqrt(sum((v - mean) ** 2 for v in values) / (len(values) - 1) / len(values)):.1f}"
-              if len(values) > 1 else "–")
+        mean, se = mean_and_standard_error(values)
+        se = "–" if se is None else f"{se:.1f}"
         optimal = summary.get("optimal_return")
         reached = f"{mean / optimal:.0%}" if optimal else "–"
         per_seed = " ".join(f"{v:.1f}" for v in values)

@@ -36,6 +36,15 @@ def smooth(values: np.ndarray, window: int) -> np.ndarray:
     return (c[..., idx + 1] - c[..., lo]) / (idx + 1 - lo)
 
 
+def mean_and_standard_error(values: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+    """Mean over seeds (axis 0) and its standard error (``None`` for a single seed)."""
+    values = np.asarray(values, dtype=np.float64)
+    mean = values.mean(0)
+    if values.shape[0] < 2:
+        return mean, None
+    return mean, values.std(0, ddof=1) / np.sqrt(values.shape[0])
+
+
 def plot_learning_curve(csv_path: str, png_path: str, title: str, optimum: float | None = None,
                         window: int = 10) -> None:
     """Mean ± s.e. over seeds of the smoothed greedy evaluation return."""
@@ -48,8 +57,8 @@ def plot_learning_curve(csv_path: str, png_path: str, title: str, optimum: float
     fig, ax = plt.subplots(figsize=(6.4, 4.0), dpi=120)
     if values.size:
         sm = smooth(values, window)
-        mean = sm.mean(0)
-        se = sm.std(0, ddof=1) / np.sqrt(sm.shape[0]) if sm.shape[0] > 1 else np.zeros_like(mean)
+        mean, se = mean_and_standard_error(sm)
+        se = np.zeros_like(mean) if se is None else se
         ax.plot(episodes, mean, label=f"ToMacVF (mean of {sm.shape[0]} seeds)")
         ax.fill_between(episodes, mean - se, mean + se, alpha=0.3, label="± standard error")
     if optimum is not None:
