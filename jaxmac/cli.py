@@ -53,19 +53,27 @@ def cmd_train(args) -> int:
 
     enable_compilation_cache()
     if args.resume:
+        ignored = [flag for flag, given in (("--scenario", args.scenario is not None), ("--seeds", args.seeds is not None),
+                                            ("--set", bool(args.set)), ("--tiny", args.tiny), ("--out", args.out is not None),
+                                            ("--workers", args.workers is not None)) if given]
+        if ignored:
+            raise ValueError(f"--resume continues the run as it was configured; {', '.join(ignored)} cannot change it "
+                             "(only --episodes, to train it further)")
         resume = resume_workers if is_worker_run(args.resume) else resume_run
-        summary = resume(args.resume, progress=not args.no_progress)
+        summary = resume(args.resume, progress=not args.no_progress, episodes=args.episodes)
         out = args.resume
     else:
-        config = scenario_config(args.scenario, tiny=args.tiny)
+        config = scenario_config(args.scenario or "boxpushing-6x6", tiny=args.tiny)
         if args.episodes is not None:
             config = config.override(episodes=args.episodes)
         config = config.override_strings(args.set)
         out = args.out or default_out_dir(config)
-        if args.workers > 1:
-            summary = train_workers(config, args.seeds, out, args.workers, progress=not args.no_progress)
+        seeds = 1 if args.seeds is None else args.seeds
+        workers = 1 if args.workers is None else args.workers
+        if workers != 1:  # train_workers validates the count
+            summary = train_workers(config, seeds, out, workers, progress=not args.no_progress)
         else:
-            summary = train_run(config, args.seeds, out, progress=not args.no_progress)
+            summary = train_run(config, seeds, out, progress=not args.no_progress)
     if summary is not None:
         print(f"run folder: {out}")
         print(f"final greedy return ({summary['scenario']}, gamma={summary['discount']}): "
@@ -101,15 +109,15 @@ def build_parser() -> argparse.ArgumentParser:
     from jaxmac.config import SCENARIOS
 
     p = sub.add_parser("train", help="train ToMacVF on a scenario, vmapped over seeds")
-    p.add_argument("--scenario", default="boxpushing-6x6", choices=list(SCENARIOS))
-    p.add_argument("--seeds", type=int, default=1, help="number of seeds (vmapped in one process)")
+    p.add_argument("--scenario", default=None, choices=list(SCENARIOS), help="default: boxpushing-6x6")
+    p.add_argument("--seeds", type=int, default=None, help="number of seeds (vmapped in one process; default 1)")
     p.add_argument("--episodes", type=int, default=None, help="training episodes per seed (default: the paper's)")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="override any config value")
     p.add_argument("--tiny", action="store_true", help="tiny networks and budgets (smoke runs)")
     p.add_argument("--out", default=None, help="run folder (default: runs/SCENARIO-ALGO-TIME)")
-    p.add_argument("--resume", default=None, metavar="RUN_DIR", help="continue a killed run")
-    p.add_argument("--workers", type=int, default=1,
-                   help="processes, each vmapping its share of the seeds (one JAX process uses about one core)")
+    p.add_argument("--resume", default=None, metavar="RUN_DIR", help="continue a killed run (with --episodes N: train a run further, to N episodes per seed)")
+    p.add_argument("--workers", type=int, default=None,
+                   help="processes, each vmapping its share of the seeds (one JAX process uses about one core; default 1)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_train)
 
@@ -122,7 +130,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    if (getattr(args, "episodes", 1) or 1) < 1 or getattr(args, "seeds", 1) < 1:
+    if any(v is not None and v < 1 for v in (getattr(args, "episodes", None), getattr(args, "seeds", None))):
         print("jaxmac: --episodes and --seeds must be >= 1", file=sys.stderr)
         return 2
     try:

@@ -160,9 +160,31 @@ def load_run(out_dir: str):
     return trainer, state, step or 0, meta
 
 
+def extend_budget(out_dir: str, episodes: int) -> None:
+    """Raise the training budget of the run in ``out_dir`` to ``episodes`` per seed (its config.json,
+    rewritten atomically). Nothing else of the config changes — the ε schedule counts episodes from
+    the start — so resuming afterwards ends exactly where a run started with that budget would."""
+    path = os.path.join(out_dir, "config.json")
+    if not os.path.exists(path):
+        raise ValueError(f"{out_dir} holds no run (no config.json)")
+    with open(path) as f:
+        meta = json.load(f)
+    current = meta["config"]["episodes"]
+    if isinstance(episodes, bool) or not isinstance(episodes, int) or episodes < current:
+        raise ValueError(f"episodes={episodes!r}: a run can only be extended; {out_dir} already has a budget of "
+                         f"{current} episodes per seed (give an integer >= {current})")
+    meta["config"] = TrainConfig(**{**meta["config"], "episodes": episodes}).to_dict()  # validated
+    _atomic_json(path, meta)
+
+
 def resume_run(out_dir: str, checkpoint_seconds: float = 120.0, progress: bool = True,
-               stop_after_chunks: int | None = None) -> dict[str, Any] | None:
-    """Continue the run in ``out_dir`` from its newest checkpoint (or from scratch if none)."""
+               stop_after_chunks: int | None = None, episodes: int | None = None) -> dict[str, Any] | None:
+    """Continue the run in ``out_dir`` from its newest checkpoint (or from scratch if none).
+
+    ``episodes`` raises its budget first (``extend_budget``), so a finished run can be trained further.
+    """
+    if episodes is not None:
+        extend_budget(out_dir, episodes)
     trainer, state, chunk, meta = load_run(out_dir)
     wall = 0.0
     progress_path = os.path.join(out_dir, "progress.json")

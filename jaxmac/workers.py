@@ -53,10 +53,26 @@ def train_workers(config: TrainConfig, seeds: int, out_dir: str, workers: int, p
     return _run_and_merge(out_dir, jobs, resume=False, progress=progress, total_episodes=config.episodes * seeds)
 
 
-def resume_workers(out_dir: str, progress: bool = True) -> dict:
+def resume_workers(out_dir: str, progress: bool = True, episodes: int | None = None) -> dict:
+    """Continue a worker run; ``episodes`` raises its budget first (see ``jaxmac.run.extend_budget``)."""
+    from jaxmac.run import extend_budget
+
+    if episodes is not None:
+        extend_budget(out_dir, episodes)
     with open(os.path.join(out_dir, "config.json")) as f:
         meta = json.load(f)
     jobs = _worker_dirs(out_dir, meta["workers"])
+    if episodes is not None:
+        for d in jobs:
+            if os.path.exists(os.path.join(d, "config.json")):
+                extend_budget(d, episodes)
+            job_path = os.path.join(d, "job.json")
+            with open(job_path) as f:
+                job = json.load(f)
+            job["config"] = meta["config"]
+            with open(job_path + ".tmp", "w") as f:
+                json.dump(job, f)
+            os.replace(job_path + ".tmp", job_path)
     return _run_and_merge(out_dir, jobs, resume=True, progress=progress,
                           total_episodes=meta["config"]["episodes"] * meta["seeds"])
 
@@ -81,13 +97,22 @@ def _episodes_done(job_dir: str) -> int:
     return sum(last.values())
 
 
+def _finished(job_dir: str) -> bool:
+    """The worker wrote its summary for its current budget (a budget raised later makes it unfinished)."""
+    summary_path, config_path = (os.path.join(job_dir, name) for name in ("summary.json", "config.json"))
+    if not (os.path.exists(summary_path) and os.path.exists(config_path)):
+        return False
+    with open(summary_path) as f, open(config_path) as g:
+        return json.load(f)["episodes"] >= json.load(g)["config"]["episodes"]
+
+
 def _run_and_merge(out_dir: str, jobs: list[str], resume: bool, progress: bool, total_episodes: int) -> dict:
     from tqdm import tqdm
 
     start = time.perf_counter()
     procs = []
     for d in jobs:
-        if os.path.exists(os.path.join(d, "summary.json")):
+        if _finished(d):
             continue  # this worker had finished before the interruption
         cmd = [sys.executable, "-m", "jaxmac.workers", d] + (["--resume"] if resume else [])
         log = open(os.path.join(d, "worker.log"), "a")

@@ -168,6 +168,25 @@ def test_resume_equals_uninterrupted(tmp_path):
         train_run(config, 2, str(tmp_path / "full"), progress=False)
 
 
+def test_extending_a_finished_run_equals_a_run_with_the_larger_budget(tmp_path):
+    config = TINY.override(episodes=32)
+    longer = train_run(config.override(episodes=64), 1, str(tmp_path / "long"), rounds_per_chunk=2, progress=False)
+    train_run(config, 1, str(tmp_path / "short"), rounds_per_chunk=2, progress=False)
+    with pytest.raises(ValueError, match="episodes=16: a run can only be extended.*budget of 32"):
+        resume_run(str(tmp_path / "short"), progress=False, episodes=16)
+    extended = resume_run(str(tmp_path / "short"), progress=False, episodes=64)
+    assert extended["episodes"] == 64
+    assert extended["final_greedy_return"] == longer["final_greedy_return"]
+    assert _read(tmp_path / "long" / "metrics.csv") == _read(tmp_path / "short" / "metrics.csv")
+
+
+def test_cli_resume_refuses_options_it_would_ignore(tmp_path, capsys):
+    from jaxmac.cli import main
+
+    assert main(["train", "--resume", str(tmp_path), "--set", "lr=0.1"]) == 2
+    assert "--set cannot change it" in capsys.readouterr().err
+
+
 def test_config_errors_name_the_value():
     with pytest.raises(ValueError, match="buffer='sjert'.*choices"):
         TINY.override(buffer="sjert")
