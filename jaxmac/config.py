@@ -43,6 +43,10 @@ class TrainConfig:
     fc_size: int = 64
     n_step: int = 1  # micro-TD n (D11)
     macro_loss_weight: float = 1.0  # λ (D8)
+    # weight of squared TD errors where Q_tot is above its target; 1 = plain MSE (D18), < 1 = optimistic
+    # weighting (OW-QMIX's weighting without its Q*, hysteretic Q-learning): keeps the value of a joint
+    # action that succeeded when partners' exploration makes it fail elsewhere
+    overestimate_weight: float = 1.0
     buffer: str = "mac_sjert"
     mixer: str = "qmix"
     mixer_params: str = "atpg"
@@ -83,6 +87,8 @@ class TrainConfig:
             raise ValueError(f"attn_delta={self.attn_delta!r} must be in [0, 1)")
         if self.buffer_episodes < self.batch_size:
             raise ValueError(f"buffer_episodes={self.buffer_episodes} must be >= batch_size={self.batch_size}")
+        if not 0.0 < self.overestimate_weight <= 1.0:
+            raise ValueError(f"overestimate_weight={self.overestimate_weight!r} must be in (0, 1] (1 = plain MSE)")
         if self.macro_loss_weight < 0 or self.grad_clip <= 0:
             raise ValueError("macro_loss_weight must be >= 0 and grad_clip > 0")
 

@@ -194,3 +194,14 @@ def test_config_errors_name_the_value():
         TINY.override_strings(["lrate=0.1"])
     with pytest.raises(ValueError, match="unknown scenario"):
         scenario_config("boxpushing-7x7")
+
+
+def test_overestimate_weight_downweights_only_positive_td_errors():
+    from jaxmac.algos.tomacvf import _mse
+
+    delta = jnp.array([2.0, -2.0, 1.0, 5.0])
+    mask = jnp.array([True, True, True, False])
+    assert float(_mse(delta, mask)) == pytest.approx((4 + 4 + 1) / 3)
+    assert float(_mse(delta, mask, 0.25)) == pytest.approx((0.25 * 4 + 4 + 0.25 * 1) / 3)
+    with pytest.raises(ValueError, match=r"overestimate_weight=0.0 must be in \(0, 1\]"):
+        TINY.override(overestimate_weight=0.0)

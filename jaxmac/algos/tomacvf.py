@@ -67,9 +67,13 @@ def network_configs(config: TrainConfig, env: MacroEnv) -> tuple[AgentNetConfig,
     return agent, mixer
 
 
-def _mse(delta: chex.Array, mask: chex.Array) -> chex.Array:
+def _mse(delta: chex.Array, mask: chex.Array, overestimate_weight: float = 1.0) -> chex.Array:
+    """Mean over ``mask`` of ``w · delta²`` with ``delta = Q_tot − y``; ``w = overestimate_weight`` where
+    ``delta > 0`` and 1 elsewhere (1 everywhere by default: plain MSE)."""
     mask = mask.astype(jnp.float32)
-    return jnp.sum(mask * delta**2) / jnp.maximum(mask.sum(), 1.0)
+    if overestimate_weight != 1.0:
+        mask = mask * jnp.where(delta > 0, overestimate_weight, 1.0)
+    return jnp.sum(mask * delta**2) / jnp.maximum((mask > 0).sum(), 1.0)
 
 
 def make_tomacvf(config: TrainConfig, env: MacroEnv) -> Algorithm:
@@ -129,7 +133,7 @@ def make_tomacvf(config: TrainConfig, env: MacroEnv) -> Algorithm:
         boot = bootstrap(q_detached, q_tgt, w_tgt, micro.boot_row, micro.boot_avail, micro.boot_free,
                          micro.boot_mac)
         y_micro = jax.lax.stop_gradient(micro.ret + micro.boot_discount * boot)
-        micro_loss = _mse(q_tot - y_micro, micro.mask)
+        micro_loss = _mse(q_tot - y_micro, micro.mask, config.overestimate_weight)
 
         macro = views.macro_view(batch)  # leaves [B, n, K, ...]
         q_start = take_rows(q, macro.start, batch_ndim=1)  # [B, n, K, n, A]
@@ -138,7 +142,7 @@ def make_tomacvf(config: TrainConfig, env: MacroEnv) -> Algorithm:
         boot_m = bootstrap(q_detached, q_tgt, w_tgt, macro.boot_row, macro.boot_avail, macro.boot_free,
                            macro.boot_mac)
         y_macro = jax.lax.stop_gradient(macro.reward + macro.discount * boot_m)
-        macro_loss = _mse(q_tot_m - y_macro, macro.mask)
+        macro_loss = _mse(q_tot_m - y_macro, macro.mask, config.overestimate_weight)
         total = micro_loss + lam * macro_loss
         return total, {"micro_loss": micro_loss, "macro_loss": macro_loss,
                        "q_tot_mean": jnp.sum(q_tot * micro.mask) / jnp.maximum(micro.mask.sum(), 1)}
@@ -176,7 +180,7 @@ def make_tomacvf(config: TrainConfig, env: MacroEnv) -> Algorithm:
         nxt = jnp.broadcast_to(jnp.arange(1, kk + 1), jv.mask.shape)
         boot = bootstrap(jax.lax.stop_gradient(q), q_tgt, w_tgt, nxt, jv.avail_next, jv.free_next, jv.next_mac)
         y = jax.lax.stop_gradient(jv.reward + jv.discount * boot)
-        loss = _mse(q_tot - y, jv.mask)
+        loss = _mse(q_tot - y, jv.mask, config.overestimate_weight)
         return loss, {"micro_loss": loss, "macro_loss": jnp.zeros(()),
                       "q_tot_mean": jnp.sum(q_tot * jv.mask) / jnp.maximum(jv.mask.sum(), 1)}
 
