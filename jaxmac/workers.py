@@ -135,7 +135,10 @@ def _run_and_merge(out_dir: str, jobs: list[str], resume: bool, progress: bool, 
 
 
 def merge(out_dir: str, jobs: list[str], wall_seconds: float) -> dict[str, Any]:
-    """Concatenate the workers' metrics and summaries (ordered by seed) and plot the curve."""
+    """Concatenate the workers' metrics and summaries (ordered by seed) and plot the curve.
+
+    ``wall_seconds`` is this call's wall time; a resumed run reports the longest worker's accumulated
+    time if that is larger (workers run side by side and each counts its own time across resumes)."""
     from jaxmac.plotting import plot_learning_curve
 
     summaries = []
@@ -157,6 +160,7 @@ def merge(out_dir: str, jobs: list[str], wall_seconds: float) -> dict[str, Any]:
     for key in ("final_greedy_return", "final_greedy_return_undiscounted"):
         summary[key] = [v for s in summaries for v in s[key]]
         summary[key + "_mean"] = sum(summary[key]) / len(summary[key])
+    wall_seconds = max([wall_seconds] + [s["wall_seconds"] for s in summaries if "wall_seconds" in s])
     summary.update(seeds=len(summary["final_greedy_return"]), workers=len(jobs), wall_seconds=wall_seconds)
     with open(os.path.join(out_dir, "summary.json"), "w") as f:
         json.dump(summary, f, indent=2)

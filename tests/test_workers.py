@@ -30,10 +30,11 @@ def test_merge_concatenates_workers_in_seed_order(tmp_path):
                 w.writerows([[s, 0, 8, "nan"], [s, 1, 16, float(10 * s)]])
         (d / "summary.json").write_text(json.dumps({
             "scenario": "boxpushing-6x6", "algorithm": "tomacvf", "episodes": 16, "discount": 0.98,
-            "optimal_return": 270.605, "final_greedy_return": [float(s) for s in seeds],
+            "optimal_return": 270.605, "wall_seconds": 1.0 + k, "final_greedy_return": [float(s) for s in seeds],
             "final_greedy_return_undiscounted": [2.0 * s for s in seeds]}))
         jobs.append(str(d))
     summary = merge(str(tmp_path), jobs, wall_seconds=1.5)
+    assert summary["wall_seconds"] == 2.0  # a resumed run: the longest worker's accumulated time
     assert summary["final_greedy_return"] == [0.0, 1.0, 2.0] and summary["seeds"] == 3
     assert summary["final_greedy_return_mean"] == pytest.approx(1.0)
     assert summary["final_greedy_return_undiscounted_mean"] == pytest.approx(2.0)
