@@ -100,7 +100,8 @@ def _truncate_metrics(path: str, rounds_done: int) -> None:
     os.replace(tmp, path)
 
 
-def _atomic_json(path: str, obj: Any) -> None:
+def write_json_atomic(path: str, obj: Any) -> None:
+    """Write ``obj`` as JSON to ``path`` through a temporary file and a rename (never half-written)."""
     tmp = path + ".tmp"
     with open(tmp, "w") as f:
         json.dump(obj, f, indent=2)
@@ -131,7 +132,7 @@ def train_run(
     trainer = _build(config, rounds_per_chunk)
     meta = {"config": config.to_dict(), "seeds": seeds, "seed_offset": seed_offset,
             "rounds_per_chunk": trainer.rounds_per_chunk, "jax": jax.__version__}
-    _atomic_json(os.path.join(out_dir, "config.json"), meta)
+    write_json_atomic(os.path.join(out_dir, "config.json"), meta)
     keys = jax.vmap(jax.random.key)(jnp.arange(seed_offset, seed_offset + seeds))
     state = jax.jit(jax.vmap(trainer.init))(keys)
     return _loop(trainer, state, 0, out_dir, meta, checkpoint_seconds, progress, stop_after_chunks, 0.0)
@@ -174,7 +175,7 @@ def extend_budget(out_dir: str, episodes: int) -> None:
         raise ValueError(f"episodes={episodes!r}: a run can only be extended; {out_dir} already has a budget of "
                          f"{current} episodes per seed (give an integer >= {current})")
     meta["config"] = TrainConfig(**{**meta["config"], "episodes": episodes}).to_dict()  # validated
-    _atomic_json(path, meta)
+    write_json_atomic(path, meta)
 
 
 def resume_run(out_dir: str, checkpoint_seconds: float = 120.0, progress: bool = True,
@@ -227,7 +228,7 @@ def _loop(trainer, state, chunk, out_dir, meta, checkpoint_seconds, progress, st
         if chunk == total or stopping or time.perf_counter() - last_ckpt >= checkpoint_seconds:
             mngr.save(chunk, args=ocp.args.StandardSave(_to_saveable(state)))
             mngr.wait_until_finished()
-            _atomic_json(os.path.join(out_dir, "progress.json"),
+            write_json_atomic(os.path.join(out_dir, "progress.json"),
                          {"chunks_done": chunk, "wall_seconds": wall_before + time.perf_counter() - start})
             last_ckpt = time.perf_counter()
         if stopping:
@@ -264,7 +265,7 @@ def _finish(trainer, state, out_dir, meta, wall_seconds):
         "final_greedy_return_undiscounted_mean": float(undisc.mean()),
         "optimal_return": OPTIMAL_DISC_RETURN.get(config.scenario),
     }
-    _atomic_json(os.path.join(out_dir, "summary.json"), summary)
+    write_json_atomic(os.path.join(out_dir, "summary.json"), summary)
     plot_learning_curve(os.path.join(out_dir, "metrics.csv"), os.path.join(out_dir, "curve.png"),
                         f"{config.algorithm} on {config.scenario}", OPTIMAL_DISC_RETURN.get(config.scenario))
     return summary

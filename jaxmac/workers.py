@@ -17,6 +17,7 @@ import time
 from typing import Any
 
 from jaxmac.config import TrainConfig
+from jaxmac.run import extend_budget, write_json_atomic
 
 
 def split_seeds(seeds: int, workers: int) -> list[tuple[int, int]]:
@@ -42,21 +43,18 @@ def train_workers(config: TrainConfig, seeds: int, out_dir: str, workers: int, p
         raise ValueError(f"{out_dir} already holds a run; use --resume {out_dir} or another --out")
     os.makedirs(out_dir, exist_ok=True)
     shares = split_seeds(seeds, workers)
-    with open(os.path.join(out_dir, "config.json"), "w") as f:
-        json.dump({"config": config.to_dict(), "seeds": seeds, "workers": workers, "shares": shares}, f, indent=2)
+    write_json_atomic(os.path.join(out_dir, "config.json"),
+                      {"config": config.to_dict(), "seeds": seeds, "workers": workers, "shares": shares})
     jobs = []
     for d, (offset, count) in zip(_worker_dirs(out_dir, workers), shares):
         os.makedirs(d, exist_ok=True)
-        with open(os.path.join(d, "job.json"), "w") as f:
-            json.dump({"config": config.to_dict(), "seeds": count, "seed_offset": offset}, f)
+        write_json_atomic(os.path.join(d, "job.json"), {"config": config.to_dict(), "seeds": count, "seed_offset": offset})
         jobs.append(d)
     return _run_and_merge(out_dir, jobs, resume=False, progress=progress, total_episodes=config.episodes * seeds)
 
 
 def resume_workers(out_dir: str, progress: bool = True, episodes: int | None = None) -> dict:
     """Continue a worker run; ``episodes`` raises its budget first (see ``jaxmac.run.extend_budget``)."""
-    from jaxmac.run import extend_budget
-
     if episodes is not None:
         extend_budget(out_dir, episodes)
     with open(os.path.join(out_dir, "config.json")) as f:
@@ -69,10 +67,7 @@ def resume_workers(out_dir: str, progress: bool = True, episodes: int | None = N
             job_path = os.path.join(d, "job.json")
             with open(job_path) as f:
                 job = json.load(f)
-            job["config"] = meta["config"]
-            with open(job_path + ".tmp", "w") as f:
-                json.dump(job, f)
-            os.replace(job_path + ".tmp", job_path)
+            write_json_atomic(job_path, dict(job, config=meta["config"]))
     return _run_and_merge(out_dir, jobs, resume=True, progress=progress,
                           total_episodes=meta["config"]["episodes"] * meta["seeds"])
 
@@ -162,8 +157,7 @@ def merge(out_dir: str, jobs: list[str], wall_seconds: float) -> dict[str, Any]:
         summary[key + "_mean"] = sum(summary[key]) / len(summary[key])
     wall_seconds = max([wall_seconds] + [s["wall_seconds"] for s in summaries if "wall_seconds" in s])
     summary.update(seeds=len(summary["final_greedy_return"]), workers=len(jobs), wall_seconds=wall_seconds)
-    with open(os.path.join(out_dir, "summary.json"), "w") as f:
-        json.dump(summary, f, indent=2)
+    write_json_atomic(os.path.join(out_dir, "summary.json"), summary)
     plot_learning_curve(os.path.join(out_dir, "metrics.csv"), os.path.join(out_dir, "curve.png"),
                         f"{summary['algorithm']} on {summary['scenario']}", summary["optimal_return"])
     return summary
