@@ -2,20 +2,18 @@
 
 from __future__ import annotations
 
-import glob
-import os
-
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from _reference import require_traces, trace_dir, trace_files
 
 import envs_jax
 from envs_jax.boxpushing import GT_BB0, GT_BB1, PUSH, STAY
 from envs_jax.conformance.__main__ import main as conformance_main
 
-TRACE_DIR = os.path.join(os.path.dirname(__file__), "..", "..", "shared", "reference", "boxpushing", "traces")
-TRACES = sorted(glob.glob(os.path.join(TRACE_DIR, "bp_g*.npz")))
+TRACE_DIR = trace_dir("boxpushing")
+TRACES = trace_files("boxpushing", "bp_g*.npz")
 
 
 @pytest.fixture(scope="module")
@@ -63,6 +61,7 @@ def scan_rollout(env, key, n_steps):
 
 
 def test_shared_traces_cover_the_documented_set():
+    require_traces("boxpushing", TRACES)
     assert len(TRACES) == 10, f"expected the 10 shared Box Pushing trace files in {TRACE_DIR}"
     reset_eps = synth_eps = 0
     for path in TRACES:
@@ -74,12 +73,14 @@ def test_shared_traces_cover_the_documented_set():
 
 
 def test_conformance_all_shared_traces(capsys):
+    require_traces("boxpushing", TRACES)
     assert conformance_main(TRACES) == 0
     out = capsys.readouterr().out
     assert out.strip().splitlines()[-1] == "8328/8328 transitions match"
 
 
 def test_conformance_reports_a_corrupted_trace(tmp_path, capsys):
+    require_traces("boxpushing", TRACES)
     path = tmp_path / "bp_g06_bad.npz"
     with np.load(TRACES[0]) as d:
         data = {k: d[k] for k in d.files}

@@ -3,7 +3,6 @@ the scripted policy, metadata and errors."""
 
 from __future__ import annotations
 
-import glob
 import json
 import os
 
@@ -11,6 +10,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from _reference import require_traces, trace_dir, trace_files
 
 import envs_jax
 from envs_jax.conformance.__main__ import main as conformance_main
@@ -19,8 +19,8 @@ from envs_jax.overcooked.plan_table import build_table, make_exact_planner, pair
 from envs_jax.overcooked.scripted import scripted_actions
 from envs_jax.policies import uniform_random_actions
 
-TRACE_DIR = os.path.join(os.path.dirname(__file__), "..", "..", "shared", "reference", "overcooked", "traces")
-TRACES = sorted(glob.glob(os.path.join(TRACE_DIR, "overcooked_*.npz")))
+TRACE_DIR = trace_dir("overcooked")
+TRACES = trace_files("overcooked", "overcooked_*.npz")
 KEY = jax.random.key(0)
 N_LANES = 3 * 256  # planner tests: one compiled search for both
 search = jax.jit(jax.vmap(planner.plan_exact))
@@ -55,6 +55,7 @@ def scan_rollout(env, key, n_steps, policy=None):
 
 
 def test_shared_traces_are_the_documented_set():
+    require_traces("overcooked", TRACES)
     assert [os.path.basename(p) for p in TRACES] == ["overcooked_A.npz", "overcooked_B.npz", "overcooked_C.npz"]
     total = 0
     for path in TRACES:
@@ -65,12 +66,14 @@ def test_shared_traces_are_the_documented_set():
 
 
 def test_conformance_all_shared_traces(capsys):
+    require_traces("overcooked", TRACES)
     assert conformance_main(TRACES) == 0
     out = capsys.readouterr().out
     assert out.count("OK ") == 3 and out.strip().splitlines()[-1] == "19977/19977 transitions match"
 
 
 def test_conformance_reports_a_corrupted_trace(tmp_path, capsys):
+    require_traces("overcooked", TRACES)
     with np.load(TRACES[0]) as d:
         data = {k: d[k] for k in d.files}
     row = data["ep_step_start"][3] + 5

@@ -4,7 +4,6 @@ returns, jit/vmap/plain equality, retracing, the quirk switches, noise sampling,
 from __future__ import annotations
 
 import dataclasses
-import glob
 import json
 import os
 
@@ -12,6 +11,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from _reference import require_traces, trace_dir, trace_files
 
 import envs_jax
 from envs_jax.conformance import warehouse as adapter
@@ -20,8 +20,8 @@ from envs_jax.warehouse import InjectedNoiseEnv, Noise, make_warehouse
 from envs_jax.warehouse.scripted import ScriptedPolicy
 from envs_jax.warehouse.variants import DEFAULT_CONFIGS, LAYOUTS
 
-TRACE_DIR = os.path.join(os.path.dirname(__file__), "..", "..", "shared", "reference", "warehouse", "traces")
-TRACES = sorted(glob.glob(os.path.join(TRACE_DIR, "warehouse_*.npz")))
+TRACE_DIR = trace_dir("warehouse")
+TRACES = trace_files("warehouse", "warehouse_*.npz")
 
 
 def random_policy(key, ts):
@@ -83,6 +83,7 @@ def traced_step(env_e):
 
 
 def test_shared_traces_cover_the_documented_set():
+    require_traces("warehouse", TRACES)
     assert len(TRACES) == 10, f"expected the 10 shared Warehouse trace files in {TRACE_DIR}"
     counts = {False: [0, 0], True: [0, 0]}  # noisy -> [episodes, transitions]
     for path in TRACES:
@@ -94,6 +95,7 @@ def test_shared_traces_cover_the_documented_set():
 
 
 def test_conformance_all_shared_traces(capsys):
+    require_traces("warehouse", TRACES)
     assert conformance_main(TRACES) == 0
     out = capsys.readouterr().out
     assert out.count("OK ") == 10
@@ -101,6 +103,7 @@ def test_conformance_all_shared_traces(capsys):
 
 
 def test_conformance_reports_corrupted_traces(tmp_path, capsys):
+    require_traces("warehouse", TRACES)
     path = tmp_path / "warehouse_A_bad.npz"
     with np.load(TRACES[0]) as d:  # warehouse_A.npz: compiled replay reused from the test above
         data = {k: d[k] for k in d.files}
@@ -122,6 +125,7 @@ def test_conformance_reports_corrupted_traces(tmp_path, capsys):
 
 
 def test_continuous_motion_path_reproduces_the_paper_traces():
+    require_traces("warehouse", TRACES)
     """The float32 motion used with noise, run noise-free on E's paper trace: every discrete
     field still matches; positions agree to 1e-6 but not bit-exactly (hence the motion graph)."""
     with np.load(os.path.join(TRACE_DIR, "warehouse_E.npz")) as d:
@@ -339,6 +343,7 @@ def test_step_rejects_bad_actions(env_e):
 
 
 def test_trace_metadata_matches_our_spec():
+    require_traces("warehouse", TRACES)
     for path in TRACES:
         with np.load(path) as d:
             meta = json.loads(str(d["meta_json"]))
