@@ -205,3 +205,37 @@ def test_overestimate_weight_downweights_only_positive_td_errors():
     assert float(_mse(delta, mask, 0.25)) == pytest.approx((0.25 * 4 + 4 + 0.25 * 1) / 3)
     with pytest.raises(ValueError, match=r"overestimate_weight=0.0 must be in \(0, 1\]"):
         TINY.override(overestimate_weight=0.0)
+
+
+@pytest.mark.parametrize("end", ["truncated", "terminated"])
+def test_jert_sequence_is_the_decision_rows_then_the_bootstrap_row(end):
+    """Mac-JERT ablation: entry k (k < c) is decision row start[k]; entry c is the row after the last kept step.
+
+    Checked against the per-row inputs of the same slot: a truncated episode must bootstrap from the
+    real next row, not from padding.
+    """
+    from _buffer_fixtures import config_for, synthetic_rollout
+
+    from jaxmac import episode, views
+    from jaxmac.algos.tomacvf import jert_sequence
+    from jaxmac.networks import slot_inputs
+
+    rng = np.random.default_rng(3)
+    h, n, length = 12, 2, 9
+    mac_done = rng.random((h, n)) < 0.35
+    reset_ts, traj, _ = synthetic_rollout(mac_done, rng.normal(size=h), length, end=end, obs_dim=3, num_actions=4)
+    slot = episode.write_episode(config_for(h, n, 0.9), reset_ts, traj)
+    batch = jax.tree_util.tree_map(lambda x: x[None], slot)
+    jv, seq, tau, state = jax.jit(jert_sequence)(batch)
+    rows_inputs, _ = slot_inputs(batch, "macro")
+    rows_state = batch.decode_state()
+
+    count = int(jv.mask[0].sum())
+    assert 0 < count < h  # the bootstrap row lies inside the padding, the case that matters
+    rows = np.append(np.asarray(jv.start[0, :count]), int(jv.step[0, count - 1]) + 1)
+    for field in ("obs", "t", "prev_t", "prev_mac", "prev_t_m"):
+        np.testing.assert_array_equal(np.asarray(getattr(seq, field))[0, :count + 1],
+                                      np.asarray(getattr(rows_inputs, field))[0, rows], err_msg=field)
+    np.testing.assert_array_equal(np.asarray(state)[0, :count + 1], np.asarray(rows_state)[0, rows])
+    np.testing.assert_array_equal(np.asarray(tau)[0, count], np.asarray(jv.next_t_m)[0, count - 1])
+    np.testing.assert_array_equal(np.asarray(seq.reset)[0], np.arange(h + 1) == 0)

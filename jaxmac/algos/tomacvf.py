@@ -47,6 +47,7 @@ from jaxmac.networks import (
     init_agent_params,
     init_mixer_params,
     initial_carry,
+    jert_inputs,
     masked_argmax,
     mix,
     slot_inputs,
@@ -74,6 +75,51 @@ def _mse(delta: chex.Array, mask: chex.Array, overestimate_weight: float = 1.0) 
     if overestimate_weight != 1.0:
         mask = mask * jnp.where(delta > 0, overestimate_weight, 1.0)
     return jnp.sum(mask * delta**2) / jnp.maximum((mask > 0).sum(), 1.0)
+
+
+def jert_sequence(batch: EpisodeSlot):
+    """The squeezed Mac-JERT sequence (D16) plus its bootstrap row, for a batch of slots.
+
+    Entries ``0..c-1`` are the ``c`` real joint decision rows (``networks.jert_inputs``); entry ``c``
+    is the row after the last kept step (its observation, state, time and progress), from which the
+    last transition bootstraps when the episode was truncated; later entries are padding. The
+    sequence has ``K + 1`` entries so that ``c = K`` fits.
+
+    Args:
+      batch: ``EpisodeSlot`` with leaves ``[B, H, ...]``.
+    Returns:
+      jv: ``views.jert_view(batch)`` (leaves ``[B, K, ...]``).
+      inputs: ``NetInputs`` with ``T = K + 1``.
+      tau: i32[B, K + 1, n] progress at each entry (0 for free agents).
+      state: f32[B, K + 1, S] global state at each entry.
+    """
+    jv = views.jert_view(batch)
+    inputs, tau = jert_inputs(batch, jv)
+    count = jv.mask.sum(-1)  # [B]
+    last = jnp.maximum(count - 1, 0)
+    is_boot = jnp.arange(jv.mask.shape[-1] + 1) == count[:, None]  # [B, K + 1]
+
+    def at_last(x):  # x [B, K, ...] -> [B, ...]
+        return jnp.take_along_axis(x, last.reshape((-1,) + (1,) * (x.ndim - 1)), 1)[:, 0]
+
+    def with_boot_row(x, boot):  # x [B, K, ...], boot [B, ...] -> [B, K + 1, ...]
+        x = jnp.concatenate([x, jnp.zeros_like(x[:, :1])], axis=1)
+        where = is_boot.reshape(is_boot.shape + (1,) * (x.ndim - 2))
+        return jnp.where(where, boot[:, None].astype(x.dtype), x)
+
+    last_step = at_last(jv.step)
+    t_m_at_last_step = jnp.take_along_axis(batch.t_m, last_step[:, None, None], axis=1)[:, 0]  # [B, n]
+    inputs = NetInputs(
+        obs=with_boot_row(inputs.obs, at_last(jv.obs_next)),
+        t=with_boot_row(inputs.t, last_step + 1),
+        prev_t=with_boot_row(inputs.prev_t, last_step),
+        prev_mac=with_boot_row(inputs.prev_mac, at_last(jv.mac)),
+        prev_t_m=with_boot_row(inputs.prev_t_m, t_m_at_last_step),
+        reset=with_boot_row(inputs.reset, count == 0),
+    )
+    tau = with_boot_row(tau, at_last(jv.next_t_m))
+    state = with_boot_row(jv.state, at_last(jv.state_next))
+    return jv, inputs, tau, state
 
 
 def make_tomacvf(config: TrainConfig, env: MacroEnv) -> Algorithm:
@@ -148,29 +194,6 @@ def make_tomacvf(config: TrainConfig, env: MacroEnv) -> Algorithm:
                        "q_tot_mean": jnp.sum(q_tot * micro.mask) / jnp.maximum(micro.mask.sum(), 1)}
 
     # --- learning on Mac-JERT (ablation) ---------------------------------------------------
-    def jert_sequence(batch: EpisodeSlot):
-        """The squeezed sequence of joint decision rows (K entries + the row after the last)."""
-        jv = views.jert_view(batch)  # leaves [B, K, ...]
-        count = jv.mask.sum(-1)  # [B]
-        k = jnp.arange(jv.mask.shape[-1] + 1)
-
-        def pad_last(x, last):
-            return jnp.concatenate([x, last[:, None]], axis=1)
-
-        last_idx = jnp.maximum(count - 1, 0)
-        at_last = lambda x: jnp.take_along_axis(x, last_idx.reshape((-1,) + (1,) * (x.ndim - 1)), 1)[:, 0]  # noqa: E731
-        obs = pad_last(jv.obs, at_last(jv.obs_next))
-        state = pad_last(jv.state, at_last(jv.state_next))
-        t = pad_last(jv.t, at_last(jv.step) + 1)
-        prev_mac = jnp.concatenate([jnp.full_like(jv.mac[:, :1], -1), jv.mac], axis=1)
-        prev_step = jnp.concatenate([jnp.full_like(jv.step[:, :1], -1), jv.step], axis=1)
-        t_m_exec = jnp.take_along_axis(batch.t_m, jv.step[..., None], axis=1)  # progress at kept steps
-        prev_t_m = jnp.concatenate([jnp.zeros_like(t_m_exec[:, :1]), t_m_exec], axis=1)
-        tau = pad_last(jv.t_m, at_last(jv.next_t_m))
-        inputs = NetInputs(obs=obs, t=t, prev_t=prev_step, prev_mac=prev_mac, prev_t_m=prev_t_m,
-                           reset=jnp.broadcast_to(k == 0, t.shape))
-        return jv, inputs, tau, state
-
     def jert_loss(params, target_params, batch: EpisodeSlot):
         jv, inputs, tau, state = jert_sequence(batch)
         q, w = forward(params, inputs, tau, state)
