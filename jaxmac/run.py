@@ -229,7 +229,7 @@ def _loop(trainer, state, chunk, out_dir, meta, checkpoint_seconds, progress, st
             mngr.save(chunk, args=ocp.args.StandardSave(_to_saveable(state)))
             mngr.wait_until_finished()
             write_json_atomic(os.path.join(out_dir, "progress.json"),
-                         {"chunks_done": chunk, "wall_seconds": wall_before + time.perf_counter() - start})
+                              {"chunks_done": chunk, "wall_seconds": wall_before + time.perf_counter() - start})
             last_ckpt = time.perf_counter()
         if stopping:
             bar.close()

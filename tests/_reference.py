@@ -2,7 +2,7 @@
 
 They are in ``shared/reference/<domain>/traces`` next to the checkout (``../shared`` from the
 repository root, as in CI). A checkout elsewhere points ``JAXMAC_SHARED`` at that ``shared``
-folder. Conformance is not optional, so a missing folder fails the trace tests with this message
+folder. Conformance is not optional, so a missing folder fails the trace tests (``require_traces``)
 instead of skipping them.
 """
 
@@ -25,11 +25,7 @@ def trace_files(domain: str, pattern: str) -> list[str]:
     return sorted(glob.glob(os.path.join(trace_dir(domain), pattern)))
 
 
-def missing_message(domain: str) -> str:
-    return (f"no {domain} traces in {os.path.abspath(trace_dir(domain))}: run the tests from a checkout "
-            f"next to shared/, or set JAXMAC_SHARED to the shared folder")
-
-
 def require_traces(domain: str, files: list[str]) -> None:
-    """Fail the calling test with :func:`missing_message` when ``files`` is empty."""
-    assert files, missing_message(domain)
+    """Fail the calling test, saying where it looked, when ``files`` (from :func:`trace_files`) is empty."""
+    assert files, (f"no {domain} traces in {os.path.abspath(trace_dir(domain))}: run the tests from a checkout "
+                   f"next to shared/, or set JAXMAC_SHARED to the shared folder")

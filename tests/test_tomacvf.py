@@ -11,10 +11,14 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 import pytest
+from _buffer_fixtures import config_for, synthetic_rollout
 
+from jaxmac import episode
 from jaxmac import ring as ring_lib
 from jaxmac.algos import make_algorithm
+from jaxmac.algos.tomacvf import jert_sequence
 from jaxmac.config import make_env, scenario_config
+from jaxmac.networks import slot_inputs
 from jaxmac.run import enable_compilation_cache, resume_run, train_run
 from jaxmac.trainer import make_train
 
@@ -214,12 +218,6 @@ def test_jert_sequence_is_the_decision_rows_then_the_bootstrap_row(end):
     Checked against the per-row inputs of the same slot: a truncated episode must bootstrap from the
     real next row, not from padding.
     """
-    from _buffer_fixtures import config_for, synthetic_rollout
-
-    from jaxmac import episode, views
-    from jaxmac.algos.tomacvf import jert_sequence
-    from jaxmac.networks import slot_inputs
-
     rng = np.random.default_rng(3)
     h, n, length = 12, 2, 9
     mac_done = rng.random((h, n)) < 0.35

@@ -125,9 +125,9 @@ def test_conformance_reports_corrupted_traces(tmp_path, capsys):
 
 
 def test_continuous_motion_path_reproduces_the_paper_traces():
-    require_traces("warehouse", TRACES)
     """The float32 motion used with noise, run noise-free on E's paper trace: every discrete
     field still matches; positions agree to 1e-6 but not bit-exactly (hence the motion graph)."""
+    require_traces("warehouse", TRACES)
     with np.load(os.path.join(TRACE_DIR, "warehouse_E.npz")) as d:
         data = {k: d[k] for k in d.files}
     config = dataclasses.replace(DEFAULT_CONFIGS["E"], move_noise_std=0.05)
