@@ -27,7 +27,8 @@ import jax
 import numpy as np
 
 import envs_jax
-from jaxmac import collect, episode, ring, views
+from jaxmac import collect
+from jaxmac.buffer import episode, ring, views
 
 
 def nbytes(tree) -> int:

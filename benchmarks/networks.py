@@ -20,6 +20,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxmac.targets import gather_q
 from jaxmac.networks import (
     AgentNetConfig,
     ATPGConfig,
@@ -27,7 +28,6 @@ from jaxmac.networks import (
     MixerConfig,
     NetInputs,
     TemporalAgentNet,
-    gather_q,
     init_agent_params,
     init_mixer_params,
     initial_carry,

@@ -1,5 +1,5 @@
 """jaxmac: asynchronous cooperative MARL with macro-actions in JAX.
 
-Submodules are imported explicitly (``from jaxmac import episode, ring, views``) so that
+Submodules are imported explicitly (``from jaxmac.buffer import episode, ring, views``) so that
 importing the package stays cheap.
 """

@@ -2,6 +2,7 @@
 
     jaxmac rollout --env boxpushing-6x6 --episodes 1000   # random-policy rollouts + rendering
     jaxmac train --scenario boxpushing-6x6 --seeds 8      # ToMacVF, progress bar, run folder
+    jaxmac train --algorithm maccen_ddrqn --seeds 4       # a baseline with its original settings
     jaxmac train --resume runs/RUN_DIR                    # continue a killed run
     jaxmac eval runs/RUN_DIR                              # greedy episode: text + PNG strip
 """
@@ -53,17 +54,24 @@ def cmd_train(args) -> int:
 
     enable_compilation_cache()
     if args.resume:
+        import os
+
+        diverged = os.path.exists(os.path.join(args.resume, "diverged.json"))
         ignored = [flag for flag, given in (("--scenario", args.scenario is not None), ("--seeds", args.seeds is not None),
-                                            ("--set", bool(args.set)), ("--tiny", args.tiny), ("--out", args.out is not None),
-                                            ("--workers", args.workers is not None)) if given]
+                                            ("--set", bool(args.set) and not diverged), ("--tiny", args.tiny),
+                                            ("--out", args.out is not None), ("--workers", args.workers is not None),
+                                            ("--algorithm", args.algorithm is not None)) if given]
         if ignored:
             raise ValueError(f"--resume continues the run as it was configured; {', '.join(ignored)} cannot change it "
-                             "(only --episodes, to train it further)")
-        resume = resume_workers if is_worker_run(args.resume) else resume_run
-        summary = resume(args.resume, progress=not args.no_progress, episodes=args.episodes)
+                             "(only --episodes, to train it further, and --set for a run that diverged)")
+        if is_worker_run(args.resume):
+            summary = resume_workers(args.resume, progress=not args.no_progress, episodes=args.episodes)
+        else:
+            summary = resume_run(args.resume, progress=not args.no_progress, episodes=args.episodes,
+                                 assignments=args.set)
         out = args.resume
     else:
-        config = scenario_config(args.scenario or "boxpushing-6x6", tiny=args.tiny)
+        config = scenario_config(args.scenario or "boxpushing-6x6", args.algorithm or "tomacvf", tiny=args.tiny)
         if args.episodes is not None:
             config = config.override(episodes=args.episodes)
         config = config.override_strings(args.set)
@@ -106,10 +114,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=0)
     p.set_defaults(func=cmd_rollout)
 
+    from jaxmac.algos import REGISTRY
     from jaxmac.config import SCENARIOS
 
-    p = sub.add_parser("train", help="train ToMacVF on a scenario, vmapped over seeds")
+    p = sub.add_parser("train", help="train a learner (default ToMacVF) on a scenario, vmapped over seeds")
     p.add_argument("--scenario", default=None, choices=list(SCENARIOS), help="default: boxpushing-6x6")
+    p.add_argument("--algorithm", default=None, choices=list(REGISTRY),
+                   help="default: tomacvf; each starts from its original script's settings for the scenario")
     p.add_argument("--seeds", type=int, default=None, help="number of seeds (vmapped in one process; default 1)")
     p.add_argument("--episodes", type=int, default=None, help="training episodes per seed (default: the paper's)")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="override any config value")

@@ -1,10 +1,12 @@
-"""Typed, frozen, validated training configurations and the paper's 13 scenarios.
+"""Typed, frozen, validated training configurations: shared run settings plus one block per algorithm.
 
-``scenario_config("boxpushing-6x6")`` returns the ToMacVF settings of the paper's appendix
-tables (``shared/design/HYPERPARAMS.md``) as interpreted by ``DECISIONS.md`` (D2, D7, D8,
-D11, D13, D15); ``config.override(**values)`` or ``config.override_strings(["lr=3e-4"])``
-(the CLI's ``--set``) returns a validated copy. Every choice the paper leaves open is a
-field here, so alternatives stay measurable.
+``scenario_config("boxpushing-6x6")`` returns ToMacVF's settings of the paper's appendix tables
+(``shared/design/HYPERPARAMS.md``) as interpreted by ``DECISIONS.md``; ``scenario_config(s, "maccen_ddrqn")``
+a baseline's settings from the original scripts. ``TrainConfig`` holds what the shared trainer reads
+(budget, collection and update schedule, replay, optimiser, targets, exploration, evaluation); its field
+``algo`` is the algorithm's own settings block (``jaxmac.algos.settings``). ``config.override(**values)`` and
+``config.override_strings(["lr=3e-4"])`` (the CLI's ``--set``) take shared and block names alike and return a
+validated copy; a name of another algorithm's block is refused, naming that algorithm.
 """
 
 from __future__ import annotations
@@ -13,13 +15,10 @@ import dataclasses
 import typing
 from typing import Any
 
-CHOICES: dict[str, tuple[str, ...]] = {
-    "algorithm": ("tomacvf",),
-    "buffer": ("mac_sjert", "mac_jert"),  # D16 ablation
-    "mixer": ("qmix", "vdn"),  # D19
-    "mixer_params": ("atpg", "state"),  # D16: "state" = ToMacVF w/o ATPG (vanilla QMIX hypernets)
-    "obs_mode": ("real", "macro"),  # D1
-}
+from jaxmac.algos import REGISTRY
+from jaxmac.algos.settings import SCENARIOS
+
+CHOICES: dict[str, tuple[str, ...]] = {"algorithm": tuple(REGISTRY)}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -31,99 +30,153 @@ class TrainConfig:
     episodes: int = 40_000  # training episodes per seed (D20)
     num_envs: int = 16  # E episodes collected per round (D13)
     updates_per_round: int = 1  # gradient steps per collection round (D13: max(1, E/10) for BP)
-    batch_size: int = 128  # episodes per gradient step (D7)
+    # > 0: instead, one gradient step per this many env steps collected (the originals' value-based train_freq)
+    train_every_steps: int = 0
+    batch_size: int = 128  # episodes (or windows) per gradient step (D7)
     buffer_episodes: int = 5000  # ring capacity N (D7)
+    start_train_episodes: int = 0  # no gradient step before this many episodes (and a batch) are stored
     lr: float = 1e-3
-    grad_clip: float = 10.0  # global-norm clip (D8)
-    target_update_episodes: int = 32  # hard target copy period (D13)
+    grad_clip: float = 10.0  # global-norm clip (D8); 0 = none (the originals clip nothing)
+    target_update_episodes: int = 32  # hard target copy period in episodes (D13)
+    target_update_steps: int = 0  # > 0: the period counts env steps instead (the originals' target_update_freq)
+    target_polyak: float = 0.0  # > 0: Polyak averaging by this rate after every gradient step instead of copies
     eps_start: float = 1.0
     eps_end: float = 0.1
     eps_decay_episodes: int = 4000
-    rnn_size: int = 32  # GRU width (D2)
-    fc_size: int = 64
-    n_step: int = 1  # micro-TD n (D11)
-    macro_loss_weight: float = 1.0  # λ (D8)
-    # weight of squared TD errors where Q_tot is above its target; 1 = plain MSE (D18), < 1 = optimistic
-    # weighting (OW-QMIX's weighting without its Q*, hysteretic Q-learning): keeps the value of a joint
-    # action that succeeded when partners' exploration makes it fail elsewhere
-    overestimate_weight: float = 1.0
-    buffer: str = "mac_sjert"
-    mixer: str = "qmix"
-    mixer_params: str = "atpg"
-    obs_mode: str = "real"
-    mixer_embed: int = 32
-    attn_dim: int = 32
-    attn_delta: float = 0.05  # agent-attention threshold δ (D5)
-    attn_window: int = 0  # causal window in steps; 0 = whole episode (D4)
-    time_pe_dim: int = 16  # D3
-    progress_pe_dim: int = 8  # D3
-    use_time_pe: bool = True  # D3 flag
+    eps_decay_start: int = 0  # episodes before the linear decay starts (the originals count from start_train)
     eval_every_episodes: int = 100  # D15
     eval_episodes: int = 10  # D15
     horizon: int = 0  # env horizon override for smoke runs; 0 = the scenario's own
+    algo: Any = None  # the algorithm's settings block; None = its defaults
 
     def __post_init__(self):
-        for name, choices in CHOICES.items():
-            value = getattr(self, name)
-            if value not in choices:
-                raise ValueError(f"{name}={value!r} is not valid; choices: {list(choices)}")
+        if self.algorithm not in REGISTRY:
+            raise ValueError(f"algorithm={self.algorithm!r} is not valid; choices: {list(REGISTRY)}")
+        settings_cls = REGISTRY[self.algorithm].settings
+        if self.algo is None:
+            object.__setattr__(self, "algo", settings_cls())
+        elif not isinstance(self.algo, settings_cls):
+            raise ValueError(f"algo={self.algo!r} must be a {settings_cls.__name__} for algorithm {self.algorithm!r}")
+        if self.scenario not in SCENARIOS:
+            raise ValueError(f"scenario={self.scenario!r} is not valid; choices: {list(SCENARIOS)}")
         positive = ("episodes", "num_envs", "updates_per_round", "batch_size", "buffer_episodes",
-                    "target_update_episodes", "rnn_size", "fc_size", "n_step", "mixer_embed", "attn_dim",
-                    "time_pe_dim", "progress_pe_dim", "eval_every_episodes", "eval_episodes")
+                    "target_update_episodes", "eval_every_episodes", "eval_episodes")
         for name in positive:
             if getattr(self, name) < 1:
                 raise ValueError(f"{name}={getattr(self, name)!r} must be >= 1")
-        for name in ("time_pe_dim", "progress_pe_dim"):
-            if getattr(self, name) % 2:
-                raise ValueError(f"{name}={getattr(self, name)!r} must be even (sine and cosine pairs)")
+        for name in ("train_every_steps", "start_train_episodes", "target_update_steps", "eps_decay_episodes",
+                     "eps_decay_start", "horizon"):
+            if getattr(self, name) < 0:
+                raise ValueError(f"{name}={getattr(self, name)!r} must be >= 0")
         if not 0.0 < self.lr < 1.0:
             raise ValueError(f"lr={self.lr!r} must be in (0, 1)")
         if not 0.0 <= self.eps_end <= self.eps_start <= 1.0:
             raise ValueError(f"need 0 <= eps_end <= eps_start <= 1, got eps_start={self.eps_start}, "
                              f"eps_end={self.eps_end}")
-        if self.eps_decay_episodes < 0 or self.attn_window < 0 or self.horizon < 0:
-            raise ValueError("eps_decay_episodes, attn_window and horizon must be >= 0")
-        if not 0.0 <= self.attn_delta < 1.0:
-            raise ValueError(f"attn_delta={self.attn_delta!r} must be in [0, 1)")
-        if self.buffer_episodes < self.batch_size:
+        if self.buffer_episodes < self.batch_size and not getattr(self.algo, "trace_len", 0):
             raise ValueError(f"buffer_episodes={self.buffer_episodes} must be >= batch_size={self.batch_size}")
-        if not 0.0 < self.overestimate_weight <= 1.0:
-            raise ValueError(f"overestimate_weight={self.overestimate_weight!r} must be in (0, 1] (1 = plain MSE)")
-        if self.macro_loss_weight < 0 or self.grad_clip <= 0:
-            raise ValueError("macro_loss_weight must be >= 0 and grad_clip > 0")
+        if self.grad_clip < 0:
+            raise ValueError(f"grad_clip={self.grad_clip!r} must be >= 0 (0 = no clipping)")
+        if not 0.0 <= self.target_polyak < 1.0:
+            raise ValueError(f"target_polyak={self.target_polyak!r} must be in [0, 1) (0 = hard copies)")
 
     # --- overrides ----------------------------------------------------------------------
     def override(self, **values: Any) -> "TrainConfig":
-        """A validated copy with ``values`` replaced (names and types checked)."""
-        hints = typing.get_type_hints(TrainConfig)
+        """A validated copy with ``values`` replaced: shared fields and fields of this algorithm's block (names
+        and types checked). Changing ``algorithm`` starts from the new algorithm's default block."""
+        shared_hints = _shared_hints()
+        algorithm = values.pop("algorithm", self.algorithm)
+        if algorithm not in REGISTRY:
+            raise ValueError(f"algorithm={algorithm!r} is not valid; choices: {list(REGISTRY)}")
+        settings_cls = REGISTRY[algorithm].settings
+        algo_hints = typing.get_type_hints(settings_cls)
+        shared, block = {}, {}
         for key, value in values.items():
-            if key not in hints:
-                raise ValueError(f"unknown config key {key!r}; valid keys: {sorted(hints)}")
-            expected = hints[key]
-            ok = (isinstance(value, bool) if expected is bool else
-                  isinstance(value, int) and not isinstance(value, bool) if expected is int else
-                  isinstance(value, (int, float)) and not isinstance(value, bool) if expected is float else
-                  isinstance(value, str))
-            if not ok:
-                raise ValueError(f"config {key}={value!r} must be of type {expected.__name__}")
-        return dataclasses.replace(self, **values)
+            if key == "algo":
+                raise ValueError("set the algorithm's settings by name (e.g. rnn_size=64), not as algo=")
+            if key in shared_hints:
+                _check_type(key, value, shared_hints[key])
+                shared[key] = value
+            elif key in algo_hints:
+                _check_type(key, value, algo_hints[key])
+                block[key] = value
+            else:
+                raise ValueError(_unknown_key_message(key, algorithm))
+        base = self.algo if algorithm == self.algorithm else settings_cls()
+        return dataclasses.replace(self, algorithm=algorithm, algo=dataclasses.replace(base, **block), **shared)
 
     def override_strings(self, assignments: list[str]) -> "TrainConfig":
         """Apply ``key=value`` strings (the CLI's ``--set``), parsing values by field type."""
-        hints = typing.get_type_hints(TrainConfig)
         values: dict[str, Any] = {}
         for item in assignments:
             key, sep, raw = item.partition("=")
             key = key.strip()
             if not sep:
                 raise ValueError(f"--set expects key=value, got {item!r}")
+            values[key] = raw.strip()
+        algorithm = values.get("algorithm", self.algorithm)
+        hints = {**_shared_hints(), **typing.get_type_hints(REGISTRY[algorithm].settings)} if algorithm in REGISTRY \
+            else _shared_hints()
+        parsed = {}
+        for key, raw in values.items():
             if key not in hints:
-                raise ValueError(f"unknown config key {key!r}; valid keys: {sorted(hints)}")
-            values[key] = _parse(key, raw.strip(), hints[key])
-        return self.override(**values)
+                raise ValueError(_unknown_key_message(key, algorithm))
+            parsed[key] = _parse(key, raw, hints[key])
+        return self.override(**parsed)
 
     def to_dict(self) -> dict[str, Any]:
-        return dataclasses.asdict(self)
+        """JSON-ready: shared fields, with the block as a nested dict under ``algo``."""
+        out = {f.name: getattr(self, f.name) for f in dataclasses.fields(self) if f.name != "algo"}
+        out["algo"] = {k: list(v) if isinstance(v, tuple) else v for k, v in dataclasses.asdict(self.algo).items()}
+        return out
+
+    def flat_dict(self) -> dict[str, Any]:
+        """Shared and block fields in one dict (the names ``--set`` takes)."""
+        out = self.to_dict()
+        return {**{k: v for k, v in out.items() if k != "algo"}, **out["algo"]}
+
+    @classmethod
+    def from_dict(cls, values: dict[str, Any]) -> "TrainConfig":
+        """Inverse of ``to_dict``; also reads the flat layout of run folders written before the blocks existed."""
+        values = dict(values)
+        algorithm = values.get("algorithm", "tomacvf")
+        settings_cls = REGISTRY[algorithm].settings
+        block = values.pop("algo", None)
+        if block is None:  # flat layout: ToMacVF's fields at the top level
+            names = {f.name for f in dataclasses.fields(settings_cls)}
+            block = {k: values.pop(k) for k in list(values) if k in names}
+        block = {k: tuple(v) if isinstance(v, list) else v for k, v in block.items()}
+        return cls(**values, algo=settings_cls(**block))
+
+
+def _shared_hints() -> dict[str, Any]:
+    hints = typing.get_type_hints(TrainConfig)
+    hints.pop("algo")
+    return hints
+
+
+def _unknown_key_message(key: str, algorithm: str) -> str:
+    owners = [name for name, entry in REGISTRY.items() if key in typing.get_type_hints(entry.settings)]
+    own = sorted(typing.get_type_hints(REGISTRY[algorithm].settings))
+    if owners:
+        return (f"config key {key!r} belongs to algorithm(s) {owners}, not to {algorithm!r}; {algorithm}'s own "
+                f"settings: {own}")
+    return f"unknown config key {key!r}; shared keys: {sorted(_shared_hints())}; {algorithm}'s settings: {own}"
+
+
+def _check_type(key: str, value: Any, expected: Any) -> None:
+    if expected is bool:
+        ok = isinstance(value, bool)
+    elif expected is int:
+        ok = isinstance(value, int) and not isinstance(value, bool)
+    elif expected is float:
+        ok = isinstance(value, (int, float)) and not isinstance(value, bool)
+    elif expected is str:
+        ok = isinstance(value, str)
+    else:  # tuple[int, ...]
+        ok = isinstance(value, tuple) and all(isinstance(v, int) and not isinstance(v, bool) for v in value)
+    if not ok:
+        raise ValueError(f"config {key}={value!r} must be of type {getattr(expected, '__name__', expected)}")
 
 
 def make_env(config: TrainConfig):
@@ -146,52 +199,28 @@ def _parse(key: str, raw: str, kind: type) -> Any:
             return int(raw.replace("_", ""))
         if kind is float:
             return float(raw)
-        return raw
+        if kind is str:
+            return raw
+        return tuple(int(v.replace("_", "")) for v in raw.replace(",", " ").split())  # tuple[int, ...]
     except ValueError:
-        raise ValueError(f"config {key}={raw!r} is not a valid {kind.__name__}") from None
+        raise ValueError(f"config {key}={raw!r} is not a valid {getattr(kind, '__name__', kind)}") from None
 
 
-# --- the paper's scenarios (HYPERPARAMS.md, interpreted by DECISIONS.md) -----------------------
+# --- scenarios ------------------------------------------------------------------------------------------
 
-_BP = dict(batch_size=128, eps_end=0.1, eps_decay_episodes=4000, buffer_episodes=5000, n_step=1)
-_OC = dict(lr=3e-4, rnn_size=32, n_step=5, eps_end=0.05, eps_decay_episodes=20_000, buffer_episodes=2000,
-           target_update_episodes=16, updates_per_round=1)
-_WH = dict(batch_size=32, num_envs=8, rnn_size=64, n_step=5, eps_decay_episodes=10_000, buffer_episodes=2000,
-           updates_per_round=1)
-
-SCENARIOS: dict[str, dict[str, Any]] = {
-    # Box Pushing: E = "episodes per train", max(1, E/10) updates per round (D13); 12/14: rnn 64, lr 5e-4.
-    "boxpushing-6x6": dict(_BP, lr=1e-3, num_envs=16, updates_per_round=1, target_update_episodes=32, rnn_size=32),
-    "boxpushing-8x8": dict(_BP, lr=1e-3, num_envs=16, updates_per_round=1, target_update_episodes=32, rnn_size=32),
-    "boxpushing-10x10": dict(_BP, lr=1e-3, num_envs=32, updates_per_round=3, target_update_episodes=48,
-                             rnn_size=48),
-    "boxpushing-12x12": dict(_BP, lr=5e-4, num_envs=48, updates_per_round=4, target_update_episodes=144,
-                             rnn_size=64),
-    "boxpushing-14x14": dict(_BP, lr=5e-4, num_envs=48, updates_per_round=4, target_update_episodes=144,
-                             rnn_size=64),
-    # Overcooked: E = "train freq" (32/32/64), one update per round.
-    "overcooked-A": dict(_OC, episodes=100_000, batch_size=64, num_envs=32),
-    "overcooked-B": dict(_OC, episodes=120_000, batch_size=128, num_envs=32),
-    "overcooked-C": dict(_OC, episodes=100_000, batch_size=128, num_envs=64),
-    # Warehouse A..E = WTD-D, WTD-D1, WTD-T, WTD-T1, WTD-Q.
-    "warehouse-A": dict(_WH, episodes=40_000, lr=5e-4, target_update_episodes=32, eps_end=0.05),
-    "warehouse-B": dict(_WH, episodes=40_000, lr=5e-4, target_update_episodes=32, eps_end=0.05),
-    "warehouse-C": dict(_WH, episodes=80_000, lr=3e-4, target_update_episodes=32, eps_end=0.01),
-    "warehouse-D": dict(_WH, episodes=80_000, lr=3e-4, target_update_episodes=64, eps_end=0.01),
-    "warehouse-E": dict(_WH, episodes=100_000, lr=1e-4, target_update_episodes=64, eps_end=0.01),
-}
-
-# Tiny settings for tests and smoke runs (seconds, not hours).
-TINY = dict(episodes=64, num_envs=8, batch_size=8, buffer_episodes=32, rnn_size=8, fc_size=16, mixer_embed=8,
-            attn_dim=8, time_pe_dim=4, progress_pe_dim=4, eval_every_episodes=32, eval_episodes=2,
-            target_update_episodes=16, eps_decay_episodes=32)
-
-
-def scenario_config(scenario: str, tiny: bool = False) -> TrainConfig:
-    """The paper's configuration of ``scenario`` (optionally shrunk to test size)."""
+def scenario_config(scenario: str, algorithm: str = "tomacvf", tiny: bool = False) -> TrainConfig:
+    """``algorithm``'s configuration of ``scenario`` from its original scripts (optionally shrunk to test size)."""
     if scenario not in SCENARIOS:
         raise ValueError(f"unknown scenario {scenario!r}; valid scenarios: {list(SCENARIOS)}")
-    values = dict(SCENARIOS[scenario], scenario=scenario)
+    if algorithm not in REGISTRY:
+        raise ValueError(f"unknown algorithm {algorithm!r}; valid: {list(REGISTRY)}")
+    entry = REGISTRY[algorithm]
+    values = dict(entry.scenario_values.get(scenario, {}))
     if tiny:
-        values.update(TINY)
-    return TrainConfig(**values)
+        values.update(TINY, **entry.tiny_values)
+    return TrainConfig(scenario=scenario, algorithm=algorithm).override(**values)
+
+
+# Tiny shared settings for tests and smoke runs (seconds, not hours); each algorithm adds its own.
+TINY = dict(episodes=64, num_envs=8, batch_size=8, buffer_episodes=32, eval_every_episodes=32, eval_episodes=2,
+            target_update_episodes=16, eps_decay_episodes=32)

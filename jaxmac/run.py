@@ -27,8 +27,11 @@ import numpy as np
 
 from jaxmac.config import TrainConfig
 
+# The first columns of metrics.csv; every other metric the trainer and the algorithm report follows, by name.
 METRIC_COLUMNS = ("seed", "round", "episodes", "epsilon", "train_return", "train_disc_return", "train_length",
                   "eval_disc_return", "eval_return", "loss")
+# Metrics that must stay finite in every round with a gradient step (and param_norm in every round).
+WATCHED = ("loss", "grad_norm", "param_norm")
 
 # Discounted optimal returns (SPEC §13 / BASELINES §3.2) drawn on the curves.
 OPTIMAL_DISC_RETURN = {
@@ -71,20 +74,48 @@ def _from_saved(state):
     return state.replace(key=jax.random.wrap_key_data(state.key))
 
 
+def metric_columns(metrics: dict[str, Any]) -> list[str]:
+    """``METRIC_COLUMNS`` then every other reported metric in name order."""
+    return list(METRIC_COLUMNS) + sorted(k for k in metrics if k not in METRIC_COLUMNS)
+
+
 def _write_metrics(path: str, metrics: dict[str, np.ndarray], seed_ids: list[int], first_round: int) -> None:
-    """Append rows for metrics with leaves [seeds, rounds]."""
+    """Append one row per seed and round for metrics with leaves [seeds, rounds] (every metric a column)."""
     new = not os.path.exists(path)
+    if new:
+        columns = metric_columns(metrics)
+    else:
+        with open(path, newline="") as f:
+            columns = next(csv.reader(f))
     seeds, rounds = np.shape(metrics["episodes"])
     with open(path, "a", newline="") as f:
         w = csv.writer(f)
         if new:
-            w.writerow(METRIC_COLUMNS)
+            w.writerow(columns)
         for s in range(seeds):
             for r in range(rounds):
-                row = [seed_ids[s], first_round + r]
-                row += [int(metrics["episodes"][s, r])]
-                row += [float(metrics[k][s, r]) if k in metrics else float("nan") for k in METRIC_COLUMNS[3:]]
+                row = [seed_ids[s], first_round + r, int(metrics["episodes"][s, r])]
+                for k in columns[3:]:
+                    value = metrics[k][s, r] if k in metrics else float("nan")
+                    row.append(int(value) if np.issubdtype(np.asarray(value).dtype, np.integer) else float(value))
                 w.writerow(row)
+
+
+def check_finite(metrics: dict[str, np.ndarray], seed_ids: list[int], first_round: int) -> str | None:
+    """A message naming the first seed, round and metric that went non-finite (None if all are finite).
+
+    Loss and gradient norm count only in rounds where gradient steps ran (they are NaN by design otherwise);
+    the parameter norm counts in every round."""
+    stepped = np.asarray(metrics["round_updates"]) > 0
+    for r in range(stepped.shape[1]):
+        for s in range(stepped.shape[0]):
+            for k in WATCHED:
+                if k not in metrics:
+                    continue
+                value = float(metrics[k][s, r])
+                if (k == "param_norm" or stepped[s, r]) and not np.isfinite(value):
+                    return f"seed {seed_ids[s]}, round {first_round + r}: {k} = {value}"
+    return None
 
 
 def _truncate_metrics(path: str, rounds_done: int) -> None:
@@ -146,7 +177,7 @@ def load_run(out_dir: str):
         raise ValueError(f"{out_dir} holds no run (no config.json)")
     with open(path) as f:
         meta = json.load(f)
-    config = TrainConfig(**meta["config"])
+    config = TrainConfig.from_dict(meta["config"])
     trainer = _build(config, meta["rounds_per_chunk"])
     keys = jax.vmap(jax.random.key)(jnp.arange(meta["seed_offset"], meta["seed_offset"] + meta["seeds"]))
     state = jax.jit(jax.vmap(trainer.init))(keys)
@@ -174,16 +205,36 @@ def extend_budget(out_dir: str, episodes: int) -> None:
     if isinstance(episodes, bool) or not isinstance(episodes, int) or episodes < current:
         raise ValueError(f"episodes={episodes!r}: a run can only be extended; {out_dir} already has a budget of "
                          f"{current} episodes per seed (give an integer >= {current})")
-    meta["config"] = TrainConfig(**{**meta["config"], "episodes": episodes}).to_dict()  # validated
+    meta["config"] = TrainConfig.from_dict(meta["config"]).override(episodes=episodes).to_dict()  # validated
     write_json_atomic(path, meta)
 
 
+def change_diverged_settings(out_dir: str, assignments: list[str]) -> None:
+    """Change settings (``key=value`` strings, as ``--set``) of a run that stopped because it diverged, so
+    that it continues from its last good checkpoint with them. The parameter shapes must stay the same
+    (learning rates, schedules, loss weights: yes; network sizes: no — the checkpoint would not fit)."""
+    if not os.path.exists(os.path.join(out_dir, "diverged.json")):
+        raise ValueError(f"{out_dir} did not diverge: --resume continues a run as it was configured "
+                         "(--set is only for a diverged run)")
+    path = os.path.join(out_dir, "config.json")
+    with open(path) as f:
+        meta = json.load(f)
+    meta["config"] = TrainConfig.from_dict(meta["config"]).override_strings(assignments).to_dict()
+    meta.setdefault("changed_after_divergence", []).extend(assignments)
+    write_json_atomic(path, meta)
+    os.replace(os.path.join(out_dir, "diverged.json"), os.path.join(out_dir, "diverged.previous.json"))
+
+
 def resume_run(out_dir: str, checkpoint_seconds: float = 120.0, progress: bool = True,
-               stop_after_chunks: int | None = None, episodes: int | None = None) -> dict[str, Any] | None:
+               stop_after_chunks: int | None = None, episodes: int | None = None,
+               assignments: list[str] | None = None) -> dict[str, Any] | None:
     """Continue the run in ``out_dir`` from its newest checkpoint (or from scratch if none).
 
-    ``episodes`` raises its budget first (``extend_budget``), so a finished run can be trained further.
+    ``episodes`` raises its budget first (``extend_budget``), so a finished run can be trained further;
+    ``assignments`` change the settings of a diverged run (``change_diverged_settings``).
     """
+    if assignments:
+        change_diverged_settings(out_dir, assignments)
     if episodes is not None:
         extend_budget(out_dir, episodes)
     trainer, state, chunk, meta = load_run(out_dir)
@@ -208,7 +259,7 @@ def _loop(trainer, state, chunk, out_dir, meta, checkpoint_seconds, progress, st
     total = trainer.total_chunks
     episodes_per_chunk = trainer.rounds_per_chunk * config.num_envs
     bar = tqdm(total=total * episodes_per_chunk, initial=chunk * episodes_per_chunk, unit="ep",
-               desc=f"{config.scenario}, {meta['seeds']} seeds (episodes per seed)", disable=not progress, dynamic_ncols=True)
+               desc=f"{config.algorithm} on {config.scenario}, {meta['seeds']} seeds (episodes per seed)", disable=not progress, dynamic_ncols=True)
     start = time.perf_counter()
     last_ckpt = time.perf_counter()
     last_eval = float("nan")
@@ -217,6 +268,17 @@ def _loop(trainer, state, chunk, out_dir, meta, checkpoint_seconds, progress, st
         state, metrics = train_chunk(state)
         metrics = jax.device_get(metrics)
         _write_metrics(metrics_path, metrics, seed_ids, chunk * trainer.rounds_per_chunk)
+        problem = check_finite(metrics, seed_ids, chunk * trainer.rounds_per_chunk)
+        if problem:  # never checkpoint a diverged state: the newest checkpoint stays the last good one
+            bar.close()
+            last_good = mngr.latest_step() or 0
+            mngr.close()
+            write_json_atomic(os.path.join(out_dir, "diverged.json"), {"problem": problem, "chunk": chunk,
+                                                                      "last_good_checkpoint": last_good})
+            raise RuntimeError(
+                f"training diverged at {problem}; stopped. {out_dir} keeps its last good checkpoint (chunk "
+                f"{last_good}): continue from it with other settings, e.g. "
+                f"jaxmac train --resume {out_dir} --set lr=...")
         chunk += 1
         done_here += 1
         evals = metrics["eval_disc_return"]

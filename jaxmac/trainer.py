@@ -1,19 +1,22 @@
 """The compiled, algorithm-agnostic training program.
 
-``make_train(config, algorithm)`` returns pure functions
+``make_train(config, env, algorithm)`` returns pure functions
 
     init(key) -> TrainState
     train_chunk(state) -> (state, metrics)      # ``rounds_per_chunk`` rounds in one lax.scan
-    evaluate(params, key, episodes) -> stats    # greedy decentralised episodes
+    evaluate(params, key, episodes) -> stats    # greedy episodes with ``algorithm.act`` at ε = 0
 
-A *round* is: collect ``num_envs`` episodes with the ε-greedy policy (vmapped envs) →
-write them into the Mac-SJERT ring → ``updates_per_round`` gradient steps on batches sampled
-from it (once it holds a batch) → hard target copy every ``target_update_episodes`` → a
-greedy evaluation every ``eval_every_episodes`` (DECISIONS D13, D15). Metrics are reduced
-inside the scan, one row per round. ``jax.vmap(train_chunk)`` runs several seeds at once.
+A *round* is: collect ``num_envs`` episodes with the behaviour policy (vmapped envs) → write them into
+the episode ring → training steps (``updates_per_round`` of them, or one per ``train_every_steps`` env
+steps collected) on batches from the algorithm's data source, once the ring holds ``batch_size`` (or
+``start_train_episodes``) episodes → target update (Polyak after every step when ``target_polyak`` > 0,
+else a hard copy every ``target_update_episodes`` episodes or ``target_update_steps`` env steps) → a greedy
+evaluation every ``eval_every_episodes`` (DECISIONS D13, D15). Metrics are reduced inside the scan, one
+row per round: the trainer's counters and returns plus every metric the algorithm's update reports.
+``jax.vmap(train_chunk)`` runs several seeds at once.
 
-An *algorithm* supplies networks, acting and the loss (``Algorithm``); the rollout, ring,
-schedule, evaluation and target updates here are shared by all of them.
+An *algorithm* (``jaxmac.algos.base.Algorithm``) supplies networks, acting, loss, optimiser, update and
+data source; the rollout, ring, schedule, evaluation and target updates here are shared by all of them.
 """
 
 from __future__ import annotations
@@ -29,28 +32,12 @@ import optax
 from flax import struct
 
 from envs_jax.core import MacroEnv
-from jaxmac import ring as ring_lib
-from jaxmac.collect import Act, episode_returns, run_episodes
+from jaxmac.acting import epsilon_schedule
+from jaxmac.algos.base import Algorithm, Progress, sample_episodes
+from jaxmac.buffer import ring as ring_lib
+from jaxmac.buffer.episode import SlotConfig, empty_slot, write_episode
+from jaxmac.collect import episode_returns, run_episodes
 from jaxmac.config import TrainConfig
-from jaxmac.episode import EpisodeSlot, SlotConfig, write_episode
-
-
-@dataclasses.dataclass(frozen=True)
-class Algorithm:
-    """What an algorithm plugs into the trainer.
-
-    init_params(key) -> params
-    init_carry(num_agents) -> per-env policy carry (e.g. GRU states, previous actions)
-    act(params, carry, ts, key, epsilon) -> (carry, actions i32[n]) — decentralised acting
-    loss(params, target_params, batch, key) -> (scalar, metrics dict of scalars);
-        ``batch`` is an EpisodeSlot with leaves [B, ...] sampled from the ring.
-    """
-
-    name: str
-    init_params: Callable[[chex.PRNGKey], Any]
-    init_carry: Callable[[int], Any]
-    act: Act
-    loss: Callable[[Any, Any, EpisodeSlot, chex.PRNGKey], tuple[chex.Array, dict[str, chex.Array]]]
 
 
 @struct.dataclass
@@ -61,6 +48,7 @@ class TrainState:
     ring: ring_lib.RingState
     key: chex.PRNGKey
     episodes: chex.Array  # i32[] training episodes collected
+    env_steps: chex.Array  # i32[] primitive env steps of those episodes
     updates: chex.Array  # i32[] gradient steps taken
     rounds: chex.Array  # i32[] rounds done
 
@@ -82,16 +70,6 @@ class Trainer:
         return math.ceil(self.total_rounds / self.rounds_per_chunk)
 
 
-def epsilon_schedule(config: TrainConfig, episodes: chex.Array) -> chex.Array:
-    """Linear decay from eps_start to eps_end over eps_decay_episodes training episodes."""
-    frac = jnp.clip(episodes / max(config.eps_decay_episodes, 1), 0.0, 1.0)
-    return config.eps_start + frac * (config.eps_end - config.eps_start)
-
-
-def make_optimizer(config: TrainConfig) -> optax.GradientTransformation:
-    return optax.chain(optax.clip_by_global_norm(config.grad_clip), optax.adam(config.lr))
-
-
 def make_train(
     config: TrainConfig, env: MacroEnv, algorithm: Algorithm, rounds_per_chunk: int | None = None
 ) -> Trainer:
@@ -106,21 +84,27 @@ def make_train(
     if not isinstance(rounds_per_chunk, int) or rounds_per_chunk < 1:
         raise ValueError(f"rounds_per_chunk={rounds_per_chunk!r} must be a positive integer")
     slot_config = SlotConfig.from_spec(env.spec)
-    optimizer = make_optimizer(config)
+    optimizer = algorithm.optimizer
+    sample = algorithm.sample or sample_episodes(config.batch_size)
+    store = algorithm.store
+    behaviour = algorithm.behaviour_act or (lambda p, c, ts, k, eps, episodes: algorithm.act(p, c, ts, k, eps))
     gamma = env.spec.discount
+    # the ring must hold a batch of episodes, or start_train episodes where the data source sets that
+    min_episodes = config.start_train_episodes or config.batch_size
+    if min_episodes > config.buffer_episodes:
+        raise ValueError(f"start_train_episodes={min_episodes} exceeds buffer_episodes={config.buffer_episodes}")
+    polyak = config.target_polyak
 
     def init(key: chex.PRNGKey) -> TrainState:
         key, k_params = jax.random.split(key)
         params = algorithm.init_params(k_params)
+        zero = jnp.zeros((), jnp.int32)
         return TrainState(
             params=params,
             target_params=jax.tree_util.tree_map(jnp.copy, params),
             opt_state=optimizer.init(params),
-            ring=ring_lib.init(slot_config, config.buffer_episodes),
-            key=key,
-            episodes=jnp.zeros((), jnp.int32),
-            updates=jnp.zeros((), jnp.int32),
-            rounds=jnp.zeros((), jnp.int32),
+            ring=ring_lib.init(store(empty_slot(slot_config)) if store else slot_config, config.buffer_episodes),
+            key=key, episodes=zero, env_steps=zero, updates=zero, rounds=zero,
         )
 
     def evaluate(params, key, episodes: int) -> dict[str, chex.Array]:
@@ -128,45 +112,65 @@ def make_train(
         return episode_returns(traj, gamma)
 
     def gradient_step(carry, key):
-        params, target_params, opt_state, ring = carry
+        params, target_params, opt_state, ring, fresh, progress = carry
         k_sample, k_loss = jax.random.split(key)
-        batch, _ = ring_lib.sample(ring, k_sample, config.batch_size)
-        (loss, metrics), grads = jax.value_and_grad(algorithm.loss, has_aux=True)(
-            params, target_params, batch, k_loss
-        )
-        updates, opt_state = optimizer.update(grads, opt_state, params)
-        params = optax.apply_updates(params, updates)
-        metrics = dict(metrics, loss=loss, grad_norm=optax.tree.norm(grads))
-        return (params, target_params, opt_state, ring), metrics
+        batch = sample(ring, fresh, k_sample)
+        params, opt_state, metrics = algorithm.update(params, target_params, opt_state, batch, k_loss, progress)
+        if polyak:  # Polyak averaging after every step (hard copies happen per round below)
+            target_params = optax.incremental_update(params, target_params, polyak)
+        progress = progress.replace(updates=progress.updates + 1)
+        return (params, target_params, opt_state, ring, fresh, progress), metrics
 
     def one_round(state: TrainState, _):
         key, k_collect, k_update, k_eval = jax.random.split(state.key, 4)
         eps = epsilon_schedule(config, state.episodes)
-        reset_ts, traj, _ = run_episodes(env, algorithm.act, algorithm.init_carry, state.params, k_collect, eps, E)
+        act = lambda p, c, ts, k, e: behaviour(p, c, ts, k, e, state.episodes)  # noqa: E731
+        reset_ts, traj, _ = run_episodes(env, act, algorithm.init_carry, state.params, k_collect, eps, E)
         slots = jax.vmap(write_episode, in_axes=(None, 0, 0))(slot_config, reset_ts, traj)
-        ring = ring_lib.add(state.ring, slots)
+        ring = ring_lib.add(state.ring, jax.vmap(store)(slots) if store else slots)
         collected = episode_returns(traj, gamma)
-
-        def do_updates(operand):
-            params, opt_state = operand
-            carry = (params, state.target_params, opt_state, ring)
-            (params, _, opt_state, _), metrics = jax.lax.scan(
-                gradient_step, carry, jax.random.split(k_update, config.updates_per_round)
-            )
-            return params, opt_state, jax.tree_util.tree_map(jnp.mean, metrics)
-
-        def skip_updates(operand):
-            params, opt_state = operand
-            shapes = jax.eval_shape(do_updates, operand)[2]
-            return params, opt_state, jax.tree_util.tree_map(lambda s: jnp.full(s.shape, jnp.nan, s.dtype), shapes)
-
-        ready = ring_lib.can_sample(ring, config.batch_size)
-        params, opt_state, loss_metrics = jax.lax.cond(ready, do_updates, skip_updates, (state.params, state.opt_state))
         episodes = state.episodes + E
-        copy_target = episodes // config.target_update_episodes > state.episodes // config.target_update_episodes
-        target_params = jax.tree_util.tree_map(
-            lambda p, t: jnp.where(copy_target, p, t), params, state.target_params
-        )
+        env_steps = state.env_steps + collected["length"].sum().astype(jnp.int32)
+        progress = Progress(episodes=state.episodes, env_steps=state.env_steps, updates=state.updates)
+        carry = (state.params, state.target_params, state.opt_state, ring, slots, progress)
+        if config.train_every_steps:  # one step per train_every_steps env steps: a count that varies per round
+            every = config.train_every_steps
+            n_updates = env_steps // every - state.env_steps // every
+        else:
+            n_updates = jnp.asarray(config.updates_per_round, jnp.int32)
+
+        def fixed_updates(carry):
+            carry, metrics = jax.lax.scan(gradient_step, carry, jax.random.split(k_update, config.updates_per_round))
+            return carry, jax.tree_util.tree_map(jnp.mean, metrics)
+
+        def counted_updates(carry):
+            shapes = jax.eval_shape(lambda c: gradient_step(c, k_update)[1], carry)
+            zeros = jax.tree_util.tree_map(lambda s: jnp.zeros(s.shape, s.dtype), shapes)
+
+            def body(i, loop):
+                carry, sums = loop
+                carry, metrics = gradient_step(carry, jax.random.fold_in(k_update, i))
+                return carry, jax.tree_util.tree_map(jnp.add, sums, metrics)
+
+            carry, sums = jax.lax.fori_loop(0, n_updates, body, (carry, zeros))
+            return carry, jax.tree_util.tree_map(lambda x: x / jnp.maximum(n_updates, 1).astype(x.dtype), sums)
+
+        run_updates = counted_updates if config.train_every_steps else fixed_updates
+
+        def skip_updates(carry):
+            shapes = jax.eval_shape(run_updates, carry)[1]
+            return carry, jax.tree_util.tree_map(lambda s: jnp.full(s.shape, jnp.nan, s.dtype), shapes)
+
+        ready = jnp.logical_and(ring.count >= min_episodes, n_updates > 0)
+        carry, loss_metrics = jax.lax.cond(ready, run_updates, skip_updates, carry)
+        params, target_params, opt_state = carry[:3]
+        if not polyak:
+            if config.target_update_steps:
+                period, before, after = config.target_update_steps, state.env_steps, env_steps
+            else:
+                period, before, after = config.target_update_episodes, state.episodes, episodes
+            copy_target = after // period > before // period
+            target_params = jax.tree_util.tree_map(lambda p, t: jnp.where(copy_target, p, t), params, target_params)
         run_eval = episodes // config.eval_every_episodes > state.episodes // config.eval_every_episodes
         nan = jnp.full((), jnp.nan, jnp.float32)
         eval_stats = jax.lax.cond(
@@ -176,20 +180,24 @@ def make_train(
                 lambda s: jnp.zeros(s.shape, s.dtype), jax.eval_shape(lambda: evaluate(params, k_eval, config.eval_episodes))
             ),
         )
+        updates = state.updates + jnp.where(ready, n_updates, 0)
         metrics = {
             "episodes": episodes,
+            "env_steps": env_steps,
+            "updates": updates,
+            "round_updates": jnp.where(ready, n_updates, 0),
             "epsilon": eps,
             "train_return": collected["return"].mean(),
             "train_disc_return": collected["disc_return"].mean(),
             "train_length": collected["length"].mean(),
             "eval_disc_return": jnp.where(run_eval, eval_stats["disc_return"].mean(), nan),
             "eval_return": jnp.where(run_eval, eval_stats["return"].mean(), nan),
+            "param_norm": optax.tree.norm(params),
             **loss_metrics,
         }
         new_state = TrainState(
             params=params, target_params=target_params, opt_state=opt_state, ring=ring, key=key,
-            episodes=episodes, updates=state.updates + jnp.where(ready, config.updates_per_round, 0),
-            rounds=state.rounds + 1,
+            episodes=episodes, env_steps=env_steps, updates=updates, rounds=state.rounds + 1,
         )
         return new_state, metrics
 

@@ -174,7 +174,7 @@ def _main(argv: list[str]) -> int:
         return 0
     with open(os.path.join(job_dir, "job.json")) as f:
         job = json.load(f)
-    train_run(TrainConfig(**job["config"]), job["seeds"], job_dir, seed_offset=job["seed_offset"], progress=False)
+    train_run(TrainConfig.from_dict(job["config"]), job["seeds"], job_dir, seed_offset=job["seed_offset"], progress=False)
     return 0
 
 

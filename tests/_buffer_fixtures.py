@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from envs_jax.core import TimeStep
-from jaxmac.episode import ObsCodec, SlotConfig
+from jaxmac.buffer.episode import ObsCodec, SlotConfig
 
 
 def derive_t_m(mac_done: np.ndarray) -> np.ndarray:

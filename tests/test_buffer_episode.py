@@ -9,8 +9,9 @@ import pytest
 from _buffer_fixtures import config_for, synthetic_rollout
 
 import envs_jax
-from jaxmac import collect, episode, views
-from jaxmac.episode import ObsCodec, SlotConfig
+from jaxmac import collect
+from jaxmac.buffer import episode, views
+from jaxmac.buffer.episode import ObsCodec, SlotConfig
 
 
 @pytest.fixture(scope="module")

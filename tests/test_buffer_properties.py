@@ -14,7 +14,7 @@ from _buffer_fixtures import config_for, reference_accumulators, synthetic_rollo
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from jaxmac import episode, views
+from jaxmac.buffer import episode, views
 
 H, GAMMA = 10, 0.9
 SETTINGS = settings(max_examples=30, deadline=None, suppress_health_check=[HealthCheck.too_slow])

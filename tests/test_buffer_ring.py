@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from _buffer_fixtures import config_for, synthetic_rollout
 
-from jaxmac import episode, ring
+from jaxmac.buffer import episode, ring
 
 H, N_AGENTS = 4, 2
 CONFIG = config_for(H, N_AGENTS, 0.9)

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from _buffer_fixtures import config_for, synthetic_rollout
 
-from jaxmac import episode, views
+from jaxmac.buffer import episode, views
 
 G = 0.5
 R = np.array([1, 2, 4, 8, 16, 32], np.float32)

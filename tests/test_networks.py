@@ -15,8 +15,9 @@ import numpy as np
 import pytest
 from _buffer_fixtures import config_for, synthetic_rollout
 
-from jaxmac import episode, views
+from jaxmac.buffer import episode, views
 from jaxmac.encodings import EncodingConfig
+from jaxmac.targets import conditional_greedy, gather_q
 from jaxmac.networks import (
     ATPG,
     MASK_VALUE,
@@ -27,8 +28,6 @@ from jaxmac.networks import (
     NetInputs,
     TemporalAgentNet,
     agent_features,
-    conditional_greedy,
-    gather_q,
     init_agent_params,
     init_mixer_params,
     initial_carry,

@@ -13,10 +13,11 @@ import optax
 import pytest
 from _buffer_fixtures import config_for, synthetic_rollout
 
-from jaxmac import episode
-from jaxmac import ring as ring_lib
+from jaxmac.buffer import episode
+from jaxmac.buffer import ring as ring_lib
 from jaxmac.algos import make_algorithm
-from jaxmac.algos.tomacvf import jert_sequence
+from jaxmac.algos.base import Progress
+from jaxmac.networks import jert_sequence
 from jaxmac.config import make_env, scenario_config
 from jaxmac.networks import slot_inputs
 from jaxmac.run import enable_compilation_cache, resume_run, train_run
@@ -26,6 +27,7 @@ TINY = scenario_config("boxpushing-6x6", tiny=True).override(
     horizon=20, episodes=32, num_envs=8, batch_size=8, buffer_episodes=16, eval_every_episodes=16,
     eval_episodes=2, target_update_episodes=16, eps_decay_episodes=16,
 )
+PROGRESS = Progress(episodes=jnp.int32(0), env_steps=jnp.int32(0), updates=jnp.int32(0))
 
 
 @pytest.fixture(scope="module", autouse=True)
@@ -96,7 +98,7 @@ def test_loss_decreases_on_a_fixed_batch(trainer, vmapped_run):
         def step(carry, _):
             params, opt_state = carry
             (loss, _), grads = jax.value_and_grad(loss_fn, has_aux=True)(
-                params, state.target_params, batch, jax.random.key(0))
+                params, state.target_params, batch, jax.random.key(0), PROGRESS)
             updates, opt_state = opt.update(grads, opt_state)
             return (optax.apply_updates(params, updates), opt_state), loss
 
@@ -126,7 +128,7 @@ def test_ablation_switches_give_a_learning_signal(overrides, vmapped_run):
 
     @jax.jit
     def loss_and_act(params):
-        (loss, _), grads = jax.value_and_grad(algo.loss, has_aux=True)(params, params, batch, jax.random.key(0))
+        (loss, _), grads = jax.value_and_grad(algo.loss, has_aux=True)(params, params, batch, jax.random.key(0), PROGRESS)
         _, ts = env.reset(jax.random.key(0))
         _, actions = algo.act(params, algo.init_carry(env.spec.num_agents), ts, jax.random.key(1), 0.5)
         return loss, optax.tree.norm(grads), actions
@@ -201,12 +203,14 @@ def test_config_errors_name_the_value():
 
 
 def test_overestimate_weight_downweights_only_positive_td_errors():
-    from jaxmac.algos.tomacvf import _mse
+    from jaxmac.losses import td_mse
 
     delta = jnp.array([2.0, -2.0, 1.0, 5.0])
     mask = jnp.array([True, True, True, False])
-    assert float(_mse(delta, mask)) == pytest.approx((4 + 4 + 1) / 3)
-    assert float(_mse(delta, mask, 0.25)) == pytest.approx((0.25 * 4 + 4 + 0.25 * 1) / 3)
+    assert float(td_mse(delta, mask)) == pytest.approx((4 + 4 + 1) / 3)
+    assert float(td_mse(delta, mask, 0.25)) == pytest.approx((0.25 * 4 + 4 + 0.25 * 1) / 3)
+    # a traced (scheduled) weight, as the hysteretic learners pass it
+    assert float(jax.jit(td_mse)(delta, mask, jnp.float32(0.25))) == pytest.approx((0.25 * 4 + 4 + 0.25 * 1) / 3)
     with pytest.raises(ValueError, match=r"overestimate_weight=0.0 must be in \(0, 1\]"):
         TINY.override(overestimate_weight=0.0)
 

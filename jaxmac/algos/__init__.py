@@ -1,14 +1,52 @@
-"""Algorithms: each is a small module of networks + losses + acting rule (``jaxmac.trainer.Algorithm``)."""
+"""Algorithms: one module each, holding only what is particular to it, on the shared trainer.
+
+``REGISTRY`` is the one list of learners: name → settings block, per-scenario values, tiny test values and
+the factory ``make(config, env) -> Algorithm`` (imported when first used, so that reading a configuration
+does not import JAX). ``jaxmac.config`` takes its valid algorithm names from here.
+"""
 
 from __future__ import annotations
 
-from jaxmac.config import CHOICES, TrainConfig
+import dataclasses
+import importlib
+from typing import Any
+
+from jaxmac.algos import settings as s
 
 
-def make_algorithm(config: TrainConfig, env):
+@dataclasses.dataclass(frozen=True)
+class Entry:
+    settings: type  # the frozen settings block
+    factory: str  # "module:function" building the Algorithm
+    scenario_values: dict[str, dict[str, Any]]  # original-script values per scenario (shared and block fields)
+    tiny_values: dict[str, Any]  # block values for tests and smoke runs
+    summary: str
+
+
+_TINY_DRQN = dict(mlp_sizes=(8, 8), rnn_size=8, start_train_episodes=0, eps_decay_start=0, train_every_steps=20,
+                  target_update_steps=200)
+
+REGISTRY: dict[str, Entry] = {
+    "tomacvf": Entry(
+        s.ToMacVFSettings, "jaxmac.algos.tomacvf:make_tomacvf", s.TOMACVF,
+        dict(rnn_size=8, fc_size=16, mixer_embed=8, attn_dim=8, time_pe_dim=4, progress_pe_dim=4),
+        "ToMacVF: temporal agent nets, ATPG-parameterised QMIX, micro- and macro-TD on Mac-SJERT"),
+    "maccen_ddrqn": Entry(
+        s.MacCenDDRQNSettings, "jaxmac.algos.maccen_ddrqn:make_maccen_ddrqn", s.MACCEN,
+        _TINY_DRQN, "Mac-Cen-DDRQN: centralised recurrent joint Q on Mac-JERT, conditional double-Q"),
+    "macdec_q": Entry(
+        s.MacDecQSettings, "jaxmac.algos.macdec_q:make_macdec_q", s.MACDEC_Q, _TINY_DRQN,
+        "MacDec-Q: independent recurrent Q per agent on Mac-CERT, hysteretic double-Q"),
+    "macdec_ddrqn": Entry(
+        s.MacDecDDRQNSettings, "jaxmac.algos.macdec_ddrqn:make_macdec_ddrqn", s.MACDEC_DDRQN,
+        dict(_TINY_DRQN, cen_mlp_sizes=(8, 8), cen_rnn_size=8),
+        "Mac-Dec-MADDRQN: decentralised DRQNs whose targets follow a centralised conditional joint Q"),
+}
+
+
+def make_algorithm(config, env):
     """The ``Algorithm`` named by ``config.algorithm`` for ``env``."""
-    if config.algorithm == "tomacvf":
-        from jaxmac.algos.tomacvf import make_tomacvf
-
-        return make_tomacvf(config, env)
-    raise ValueError(f"unknown algorithm {config.algorithm!r}; valid: {list(CHOICES['algorithm'])}")
+    if config.algorithm not in REGISTRY:
+        raise ValueError(f"unknown algorithm {config.algorithm!r}; valid: {list(REGISTRY)}")
+    module, function = REGISTRY[config.algorithm].factory.split(":")
+    return getattr(importlib.import_module(module), function)(config, env)

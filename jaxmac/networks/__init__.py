@@ -1,12 +1,12 @@
-"""ToMacVF networks: temporal agent networks (D2, D3), ATPG (D4, D5), mixers (D6, D19) and the
-conditional greedy action (D9). See each submodule's docstring for shapes.
+"""Networks: ToMacVF's temporal agent networks (D2, D3), ATPG (D4, D5), mixers (D6, D19), and the originals'
+DRQNs. See each submodule's docstring for shapes (conditional greedy actions live in ``jaxmac.targets``).
 
 Typical training-side use on a batch of episode slots (leaves ``[B, H, ...]``, rows ``T = H + 1``)::
 
     inputs, tau = slot_inputs(slots)                                   # NetInputs [B, T, ...], tau [B, T, n]
     q, _, _ = agent_net.apply(agent_params, inputs, initial_carry(agent_cfg, (B,)), tau)  # [B, T, n, A]
     weights, _ = mixer.apply(mixer_params, slots.decode_state(), inputs)                 # MixWeights [B, T]
-    q_tot = mix(weights, gather_q(q, actions))                                          # [B, T]
+    q_tot = mix(weights, targets.gather_q(q, actions))                                      # [B, T]
 """
 
 from jaxmac.networks.agent import (
@@ -30,8 +30,7 @@ from jaxmac.networks.atpg import (
     TemporalSelfAttention,
     temporal_mask,
 )
-from jaxmac.networks.conditional import conditional_greedy, gather_q
-from jaxmac.networks.inputs import NetInputs, jert_inputs, slot_inputs, timestep_inputs
+from jaxmac.networks.inputs import NetInputs, jert_inputs, jert_sequence, slot_inputs, timestep_inputs
 from jaxmac.networks.mixers import (
     MIXER_KINDS,
     HyperMLP,
@@ -61,13 +60,12 @@ __all__ = [
     "TemporalAgentNet",
     "TemporalSelfAttention",
     "agent_features",
-    "conditional_greedy",
     "dummy_inputs",
-    "gather_q",
     "init_agent_params",
     "init_mixer_params",
     "initial_carry",
     "jert_inputs",
+    "jert_sequence",
     "mask_unavailable",
     "masked_argmax",
     "mix",

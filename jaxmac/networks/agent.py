@@ -154,19 +154,37 @@ class GRUTorso(nn.Module):
         gx = nn.Dense(3 * h, name="gru_in")(z)  # [..., T, 3h]
         u = self.param("gru_hh_kernel", _gate_orthogonal, (h, 3 * h))
         b_hn = self.param("gru_hh_bias", nn.initializers.zeros_init(), (h,))
+        return gru_scan(gx, reset[..., 0], carry, u, b_hn)
 
-        def cell(c, row):
-            g, r_flag = row
-            c = jnp.where(r_flag[..., None], jnp.zeros_like(c), c)
-            gh = c @ u
-            r = jax.nn.sigmoid(g[..., :h] + gh[..., :h])
-            zz = jax.nn.sigmoid(g[..., h:2 * h] + gh[..., h:2 * h])
-            nn_ = jnp.tanh(g[..., 2 * h:] + r * (gh[..., 2 * h:] + b_hn))
-            c = (1.0 - zz) * nn_ + zz * c
-            return c, c
 
-        carry_t, hs = jax.lax.scan(cell, carry, (jnp.moveaxis(gx, -2, 0), jnp.moveaxis(reset[..., 0], -1, 0)))
-        return jnp.moveaxis(hs, 0, -2), carry_t
+def gru_scan(gx: chex.Array, reset: chex.Array, carry: chex.Array, u: chex.Array, b_hn: chex.Array):
+    """The GRU recurrence over precomputed input projections (the only sequential part of a recurrent net).
+
+    r = σ(gx_r + h U_r), z = σ(gx_z + h U_z), n = tanh(gx_n + r ⊙ (h U_n + b_hn)), h' = (1 − z) ⊙ n + z ⊙ h;
+    the carry is zeroed before every row with ``reset`` set.
+
+    Args:
+      gx: f32[..., T, 3h] input projections W·x + b of every row (gates r, z, n).
+      reset: bool[..., T].
+      carry: f32[..., h] state before row 0.
+      u: f32[h, 3h] recurrent kernel; b_hn: f32[h].
+    Returns:
+      (hs f32[..., T, h] the state after each row, carry_T f32[..., h]).
+    """
+    h = u.shape[0]
+
+    def cell(c, row):
+        g, r_flag = row
+        c = jnp.where(r_flag[..., None], jnp.zeros_like(c), c)
+        gh = c @ u
+        r = jax.nn.sigmoid(g[..., :h] + gh[..., :h])
+        zz = jax.nn.sigmoid(g[..., h:2 * h] + gh[..., h:2 * h])
+        nn_ = jnp.tanh(g[..., 2 * h:] + r * (gh[..., 2 * h:] + b_hn))
+        c = (1.0 - zz) * nn_ + zz * c
+        return c, c
+
+    carry_t, hs = jax.lax.scan(cell, carry, (jnp.moveaxis(gx, -2, 0), jnp.moveaxis(reset, -1, 0)))
+    return jnp.moveaxis(hs, 0, -2), carry_t
 
 
 class QHead(nn.Module):

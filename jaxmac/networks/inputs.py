@@ -23,7 +23,8 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
-from jaxmac.episode import EpisodeSlot
+from jaxmac.buffer import views
+from jaxmac.buffer.episode import EpisodeSlot
 
 
 @struct.dataclass
@@ -106,6 +107,51 @@ def jert_inputs(slot: EpisodeSlot, jert) -> tuple[NetInputs, chex.Array]:
     inputs = NetInputs(obs=jert.obs.astype(jnp.float32), t=jert.t.astype(jnp.int32), prev_t=jert.t - 1,
                        prev_mac=prev_mac.astype(jnp.int32), prev_t_m=prev_t_m.astype(jnp.int32), reset=reset)
     return inputs, jert.t_m.astype(jnp.int32)
+
+
+def jert_sequence(batch: EpisodeSlot):
+    """The squeezed Mac-JERT sequence (D16) plus its bootstrap row, for a batch of slots.
+
+    Entries ``0..c-1`` are the ``c`` real joint decision rows (``jert_inputs``); entry ``c``
+    is the row after the last kept step (its observation, state, time and progress), from which the
+    last transition bootstraps when the episode was truncated; later entries are padding. The
+    sequence has ``K + 1`` entries so that ``c = K`` fits.
+
+    Args:
+      batch: ``EpisodeSlot`` with leaves ``[B, H, ...]``.
+    Returns:
+      jv: ``views.jert_view(batch)`` (leaves ``[B, K, ...]``).
+      inputs: ``NetInputs`` with ``T = K + 1``.
+      tau: i32[B, K + 1, n] progress at each entry (0 for free agents).
+      state: f32[B, K + 1, S] global state at each entry.
+    """
+    jv = views.jert_view(batch)
+    inputs, tau = jert_inputs(batch, jv)
+    count = jv.mask.sum(-1)  # [B]
+    last = jnp.maximum(count - 1, 0)
+    is_boot = jnp.arange(jv.mask.shape[-1] + 1) == count[:, None]  # [B, K + 1]
+
+    def at_last(x):  # x [B, K, ...] -> [B, ...]
+        return jnp.take_along_axis(x, last.reshape((-1,) + (1,) * (x.ndim - 1)), 1)[:, 0]
+
+    def with_boot_row(x, boot):  # x [B, K, ...], boot [B, ...] -> [B, K + 1, ...]
+        x = jnp.concatenate([x, jnp.zeros_like(x[:, :1])], axis=1)
+        where = is_boot.reshape(is_boot.shape + (1,) * (x.ndim - 2))
+        return jnp.where(where, boot[:, None].astype(x.dtype), x)
+
+    last_step = at_last(jv.step)
+    t_m_at_last_step = jnp.take_along_axis(batch.t_m, last_step[:, None, None], axis=1)[:, 0]  # [B, n]
+    inputs = NetInputs(
+        obs=with_boot_row(inputs.obs, at_last(jv.obs_next)),
+        t=with_boot_row(inputs.t, last_step + 1),
+        prev_t=with_boot_row(inputs.prev_t, last_step),
+        prev_mac=with_boot_row(inputs.prev_mac, at_last(jv.mac)),
+        prev_t_m=with_boot_row(inputs.prev_t_m, t_m_at_last_step),
+        reset=with_boot_row(inputs.reset, count == 0),
+    )
+    tau = with_boot_row(tau, at_last(jv.next_t_m))
+    state = with_boot_row(jv.state, at_last(jv.state_next))
+    return jv, inputs, tau, state
 
 
 def timestep_inputs(ts) -> NetInputs:

@@ -34,8 +34,8 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
-from jaxmac import segments as seg
-from jaxmac.episode import EpisodeSlot, agent_accumulator
+from jaxmac.buffer import segments as seg
+from jaxmac.buffer.episode import EpisodeSlot, agent_accumulator
 
 
 def _auto_batch(view):
@@ -257,3 +257,17 @@ def cert_view(slot: EpisodeSlot) -> CertView:
     return jax.vmap(per_agent, in_axes=(0, 1, 1, 1, 1))(
         jnp.arange(cfg.num_agents), kept, slot.t_m, acc, slot.mac
     )
+
+
+def cert_to_jert_index(cert_step: chex.Array, cert_mask: chex.Array, jert_step: chex.Array,
+                       jert_mask: chex.Array) -> chex.Array:
+    """For every Mac-CERT entry, the position of the Mac-JERT entry at the same step (an agent's termination is
+    always a joint decision point), in views cropped to the same windows (Mac-Dec-MADDRQN's ``id_v`` alignment).
+
+    Args:
+      cert_step, cert_mask: [B, n, L] agent entries; jert_step, jert_mask: [B, Lj] joint entries.
+    Returns:
+      i32[B, n, L] joint entry index (0 where ``cert_mask`` is False).
+    """
+    before = jert_mask[:, None, None, :] & (jert_step[:, None, None, :] < cert_step[..., None])
+    return jnp.where(cert_mask, before.sum(-1), 0).astype(jnp.int32)

@@ -35,7 +35,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from jaxmac import segments as seg
+from jaxmac.buffer import segments as seg
 
 _DTYPES = {
     "float32": jnp.float32,

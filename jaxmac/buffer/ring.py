@@ -20,7 +20,7 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
-from jaxmac.episode import EpisodeSlot, SlotConfig, empty_slot
+from jaxmac.buffer.episode import EpisodeSlot, SlotConfig, empty_slot
 
 
 @struct.dataclass
@@ -44,9 +44,14 @@ def init(example: EpisodeSlot | SlotConfig, capacity: int) -> RingState:
         raise ValueError(f"ring.init: capacity={capacity!r} must be a positive integer")
     if isinstance(example, SlotConfig):
         example = empty_slot(example)
-    if not isinstance(example, EpisodeSlot) or example.reward.ndim != 1:
-        raise ValueError("ring.init: example must be a SlotConfig or one unbatched EpisodeSlot")
-    blank = empty_slot(example.config)
+    if isinstance(example, EpisodeSlot):
+        if example.reward.ndim != 1:
+            raise ValueError("ring.init: example must be a SlotConfig or one unbatched EpisodeSlot")
+        blank = empty_slot(example.config)
+    elif jax.tree_util.tree_leaves(example):  # per-episode data derived from slots (e.g. stored views)
+        blank = jax.tree_util.tree_map(jnp.zeros_like, example)
+    else:
+        raise ValueError("ring.init: example must be a SlotConfig, an unbatched EpisodeSlot or a pytree of arrays")
     slots = jax.tree_util.tree_map(lambda x: jnp.broadcast_to(x, (capacity,) + x.shape), blank)
     return RingState(
         slots=slots,
@@ -59,18 +64,28 @@ def init(example: EpisodeSlot | SlotConfig, capacity: int) -> RingState:
 
 def add(ring: RingState, slot: EpisodeSlot) -> RingState:
     """Insert one slot (leaves ``[H, ...]``) or a batch of ``E ≤ N`` slots (``[E, H, ...]``),
-    overwriting the oldest. The batch keeps its order (entry 0 is the oldest of the batch)."""
-    if not isinstance(slot, EpisodeSlot):
-        raise ValueError(f"ring.add: expected an EpisodeSlot, got {type(slot).__name__}")
-    if slot.config != ring.slots.config:
-        raise ValueError(f"ring.add: slot config {slot.config} differs from the ring's {ring.slots.config}")
-    if slot.reward.ndim == 1:
-        slot = jax.tree_util.tree_map(lambda x: x[None], slot)
-    elif slot.reward.ndim != 2:
-        raise ValueError(
-            f"ring.add: slot leaves must be [H, ...] or [E, H, ...]; reward has shape {slot.reward.shape}"
-        )
-    e, n = slot.reward.shape[0], ring.capacity
+    overwriting the oldest. The batch keeps its order (entry 0 is the oldest of the batch).
+    A ring made from another pytree takes items of that structure, one or a batch ``[E, ...]``."""
+    if isinstance(ring.slots, EpisodeSlot):
+        if not isinstance(slot, EpisodeSlot):
+            raise ValueError(f"ring.add: expected an EpisodeSlot, got {type(slot).__name__}")
+        if slot.config != ring.slots.config:
+            raise ValueError(f"ring.add: slot config {slot.config} differs from the ring's {ring.slots.config}")
+        if slot.reward.ndim == 1:
+            slot = jax.tree_util.tree_map(lambda x: x[None], slot)
+        elif slot.reward.ndim != 2:
+            raise ValueError(
+                f"ring.add: slot leaves must be [H, ...] or [E, H, ...]; reward has shape {slot.reward.shape}"
+            )
+        e = slot.reward.shape[0]
+    else:
+        if jax.tree_util.tree_structure(slot) != jax.tree_util.tree_structure(ring.slots):
+            raise ValueError(f"ring.add: item structure {jax.tree_util.tree_structure(slot)} differs from the ring's")
+        first, stored = jax.tree_util.tree_leaves(slot)[0], jax.tree_util.tree_leaves(ring.slots)[0]
+        if first.ndim == stored.ndim - 1:
+            slot = jax.tree_util.tree_map(lambda x: x[None], slot)
+        e = jax.tree_util.tree_leaves(slot)[0].shape[0]
+    n = ring.capacity
     if e > n:
         raise ValueError(f"ring.add: batch of E={e} slots exceeds the capacity N={n}; add at most N at once")
     pos = (ring.write_pos + jnp.arange(e, dtype=jnp.int32)) % n
@@ -93,7 +108,7 @@ def sample(ring: RingState, key: chex.PRNGKey, batch_size: int) -> tuple[Episode
     """``batch_size`` slots drawn uniformly with replacement from the filled ones.
 
     Returns:
-      batch: EpisodeSlot with leaves ``[B, ...]`` (feed it to ``jaxmac.views``).
+      batch: EpisodeSlot with leaves ``[B, ...]`` (feed it to ``jaxmac.buffer.views``).
       idx: i32[B] the ring positions drawn.
     """
     if not isinstance(batch_size, int) or isinstance(batch_size, bool) or batch_size < 1:

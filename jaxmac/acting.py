@@ -1,0 +1,64 @@
+"""Acting rules shared by the learners: the ε schedule and ε-greedy choices of the free agents.
+
+Every rule returns the full joint action ``i32[n]``; busy agents re-send their running macro-action (the env
+ignores it anyway, DECISIONS D17), free agents (``ts.mac_done``) choose.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import chex
+import jax
+import jax.numpy as jnp
+
+from envs_jax.policies import uniform_random_actions
+from jaxmac.networks.agent import masked_argmax
+from jaxmac.targets import joint_conditional_argmax
+
+
+def epsilon_schedule(config, episodes: chex.Array) -> chex.Array:
+    """Linear decay from ``eps_start`` to ``eps_end`` over ``eps_decay_episodes`` training episodes, starting
+    after ``eps_decay_start`` episodes."""
+    frac = jnp.clip((episodes - config.eps_decay_start) / max(config.eps_decay_episodes, 1), 0.0, 1.0)
+    return config.eps_start + frac * (config.eps_end - config.eps_start)
+
+
+def linear_schedule(start: float, end: float, duration: int, t: chex.Array) -> chex.Array:
+    """``start`` → ``end`` linearly over ``duration`` (≥ 1) units of ``t``, then ``end``."""
+    frac = jnp.clip(t / max(duration, 1), 0.0, 1.0)
+    return start + frac * (end - start)
+
+
+def epsilon_greedy(key: chex.PRNGKey, q: chex.Array, avail: chex.Array, free: chex.Array, running: chex.Array,
+                   epsilon: chex.Array) -> chex.Array:
+    """Per-agent ε-greedy among available actions for free agents; busy agents keep ``running``.
+
+    Args:
+      q: f32[n, A] each agent's values of its macro-actions.
+      avail: bool[n, A]; free: bool[n]; running: i32[n]; epsilon: f32[].
+    Returns:
+      i32[n].
+    """
+    k_explore, k_random = jax.random.split(key)
+    explore = jax.random.uniform(k_explore, free.shape) < epsilon
+    chosen = jnp.where(explore, uniform_random_actions(k_random, avail), masked_argmax(q, avail))
+    return jnp.where(free, chosen, running)
+
+
+def joint_epsilon_greedy(key: chex.PRNGKey, q_joint: chex.Array, avail: chex.Array, free: chex.Array,
+                         running: chex.Array, epsilon: chex.Array, action_counts: Sequence[int]) -> chex.Array:
+    """Centralised conditional ε-greedy (MacCen-Q's controller): with probability ε every free agent takes a
+    uniformly random available action, otherwise the conditional argmax of the joint table is taken; busy
+    agents keep ``running`` either way.
+
+    Args:
+      q_joint: f32[|M_1|·…·|M_n|]; avail bool[n, A]; free bool[n]; running i32[n]; epsilon f32[].
+    Returns:
+      i32[n].
+    """
+    k_explore, k_random = jax.random.split(key)
+    greedy = joint_conditional_argmax(q_joint, avail, free, running, action_counts)
+    explore = jax.random.uniform(k_explore) < epsilon
+    chosen = jnp.where(explore, uniform_random_actions(k_random, avail), greedy)
+    return jnp.where(free, chosen, running)
