@@ -41,6 +41,9 @@ REGISTRY: dict[str, Entry] = {
         s.MacDecDDRQNSettings, "jaxmac.algos.macdec_ddrqn:make_macdec_ddrqn", s.MACDEC_DDRQN,
         dict(_TINY_DRQN, cen_mlp_sizes=(8, 8), cen_rnn_size=8),
         "Mac-Dec-MADDRQN: decentralised DRQNs whose targets follow a centralised conditional joint Q"),
+    "avf": Entry(
+        s.AVFSettings, "jaxmac.algos.avf:make_avf", s.AVF, dict(_TINY_DRQN, mixer_embed=8, hyper_hidden=8),
+        "AVF: per-agent recurrent Q on Mac-JERT mixed by VDN/QMIX/QPLEX, conditional double-Q, Polyak target"),
 }
 
 

@@ -294,11 +294,11 @@ MACDEC_DDRQN: dict[str, dict[str, Any]] = {
 }
 
 # AVF (BASELINES.md §1.7): the value learners' schedule with AVF's own optimiser, buffer and target settings:
-# lr 5e-4, batch 32, 2,500 episodes, Polyak ω = 0.995 after every step.
+# lr 5e-4, batch 32, 2,500 episodes, Polyak ω = 0.995 after every step; windows as the value learners.
 _AVF = dict(lr=5e-4, batch_size=32, buffer_episodes=2500, target_polyak=0.005)
 AVF: dict[str, dict[str, Any]] = {
     name: dict(MACCEN[name], **_AVF, mlp_sizes=(64, 64),
                start_train_episodes=min(MACCEN[name]["start_train_episodes"], 2500),
-               h_explore=MACCEN[name].get("h_explore", False))
+               h_explore=True)  # AVF is not MacroMARL's runner: it keeps its recurrent state while exploring
     for name in SCENARIOS
 }

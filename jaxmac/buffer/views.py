@@ -182,6 +182,8 @@ class JertView:
     obs_next: chex.Array  # f32[H, n, O] the one after the kept step
     state: chex.Array  # f32[H, S] global state at the decision row
     state_next: chex.Array  # f32[H, S]
+    macro_state: chex.Array  # f32[H, n, S] per agent, the state at the row where it chose its running action
+    macro_state_next: chex.Array  # f32[H, n, S] the same at the next decision row
     avail: chex.Array  # bool[H, n, A]
     avail_next: chex.Array  # bool[H, n, A]
 
@@ -206,7 +208,9 @@ def jert_view(slot: EpisodeSlot) -> JertView:
         discount=z(jnp.where(terminal, 0.0, seg.discount_powers(cfg.discount, tau))), terminal=z(terminal),
         mac=z(slot.mac[step]), free_next=z(free), next_mac=z(pinned), t=z(start),
         t_m=z(slot.t_m[start]), next_t_m=z(t_m_next), obs=z(obs[start]), obs_next=z(obs[step + 1]),
-        state=z(state[start]), state_next=z(state[step + 1]), avail=z(slot.avail[start]),
+        state=z(state[start]), state_next=z(state[step + 1]),
+        macro_state=z(state[start[:, None] - slot.t_m[start]]),  # agent i chose at row start − t_m[start, i]
+        macro_state_next=z(state[step[:, None] + 1 - t_m_next]), avail=z(slot.avail[start]),
         avail_next=z(slot.avail[step + 1]),
     )
 

@@ -1,4 +1,4 @@
-"""Mixers of ToMacVF: QMIX with ATPG-generated parameters, vanilla QMIX, VDN (DECISIONS D6, D19).
+"""Mixers: QMIX with ATPG-generated parameters (ToMacVF), vanilla QMIX, VDN and QPLEX (DECISIONS D6, D19).
 
 The hyper-networks run once per row and return ``MixWeights``; ``mix`` then applies them to any
 number of candidate joint Q vectors (chosen actions, target actions, a brute-force enumeration)
@@ -14,8 +14,18 @@ Kinds (``MixerConfig.kind``), all hyper-networks ``Dense(hyper_hidden)–ReLU–
 * ``'qmix'`` (ToMacVF w/o ATPG): vanilla QMIX hyper-networks on ``s_t`` only,
   ``W1 = |f_w1(s_t)|`` reshaped ``[n, embed]``.
 * ``'vdn'``: no parameters, no ATPG (D19).
+* ``'qplex'``: QPLEX's duplex dueling mixer on ``s_t`` (Wang et al. 2021): per-agent transformation
+  ``Q_i′ = w_i(s) Q_i + b_i(s)``, ``V_i′ = w_i(s) max_a Q_i + b_i(s)`` (``w_i > 0``), and
+  ``Q_tot = Σ_i V_i′ + Σ_i λ_i(s, a) (Q_i′ − V_i′)`` with ``λ_i(s, a) = Σ_k |κ_k(s)| |φ_k(s)_i| σ(ψ_k(s, a)_i) > 0``
+  over ``qplex_heads`` heads; ψ is a 2-layer MLP on ``[s, onehot(a_1), …, onehot(a_n)]`` whose first layer is split
+  into a per-row state part and a per-action table, so the weights are still computed once per row. Because
+  ``Q_i′ − V_i′ ≤ 0`` with equality at agent i's greedy action, the per-agent argmaxes maximise Q_tot (IGM).
 
-QTRAN and QPLEX mixers (D19, the paper's Fig. 7) are future work.
+What a mixer is *conditioned on* is the caller's choice of ``state``: the global state (ToMacVF, QMIX), ATPG's
+encodings with it ('atpg_qmix'), or AVF's macro-state (the concatenation of each agent's state at its
+decision) — ``state_dim`` is just the width of that vector. Q_tot of a joint action takes the per-agent Q
+*table* and the actions (``mix_actions``): QPLEX needs ``max_a Q_i`` and λ(s, a); QMIX and VDN only the chosen
+entries (``mix``). QTRAN is future work.
 
 Shapes (``...`` = leading axes, typically ``[B, T]``)::
 
@@ -46,7 +56,7 @@ from jaxmac.networks.agent import _from_spec, _positive_int, dummy_inputs
 from jaxmac.networks.atpg import ATPG, ATPGConfig
 from jaxmac.networks.inputs import NetInputs
 
-MIXER_KINDS = ("atpg_qmix", "qmix", "vdn")
+MIXER_KINDS = ("atpg_qmix", "qmix", "vdn", "qplex")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -59,6 +69,8 @@ class MixerConfig:
       kind: one of ``MIXER_KINDS``: 'atpg_qmix' (ToMacVF), 'qmix' (w/o ATPG), 'vdn'.
       embed: QMIX mixing width (32).
       hyper_hidden: hidden width of every hyper-network (64).
+      num_actions: A, padded actions per agent (QPLEX's λ reads the joint action).
+      qplex_heads: QPLEX's attention heads K (4, as QPLEX).
       atpg: ``ATPGConfig`` (required for 'atpg_qmix', ignored otherwise); its ``num_agents`` must match.
     """
 
@@ -68,9 +80,11 @@ class MixerConfig:
     embed: int = 32
     hyper_hidden: int = 64
     atpg: ATPGConfig | None = None
+    num_actions: int = 1
+    qplex_heads: int = 4
 
     def __post_init__(self):
-        for name in ("num_agents", "state_dim", "embed", "hyper_hidden"):
+        for name in ("num_agents", "state_dim", "embed", "hyper_hidden", "num_actions", "qplex_heads"):
             _positive_int("MixerConfig", name, getattr(self, name))
         if self.kind not in MIXER_KINDS:
             raise ValueError(f"MixerConfig.kind={self.kind!r}; valid choices: {list(MIXER_KINDS)}")
@@ -94,13 +108,28 @@ class MixerConfig:
 
 @struct.dataclass
 class MixWeights:
-    """Mixing parameters per row; leaves None for 'vdn'."""
+    """Mixing parameters per row; leaves None for 'vdn' (and the QMIX leaves None for 'qplex')."""
 
     w1: chex.Array | None  # f32[..., n, E] ≥ 0
     b1: chex.Array | None  # f32[..., E]
     w2: chex.Array | None  # f32[..., E] ≥ 0
     b2: chex.Array | None  # f32[...]
     kind: str = struct.field(pytree_node=False, default="atpg_qmix")
+    qplex: QPLEXWeights | None = None
+
+
+@struct.dataclass
+class QPLEXWeights:
+    """QPLEX per row (``K`` heads, ``G`` = hyper_hidden); the action tables are parameters, shared by every row."""
+
+    w: chex.Array  # f32[..., n] > 0 transformation scale w_i(s)
+    b: chex.Array  # f32[..., n] transformation shift b_i(s)
+    key: chex.Array  # f32[..., K] |κ_k(s)|
+    agents: chex.Array  # f32[..., K, n] |φ_k(s)_i|
+    psi_state: chex.Array  # f32[..., K, G] first layer of ψ_k on s (bias included)
+    psi_action: chex.Array  # f32[K, n, A, G] first layer of ψ_k on agent i's one-hot action
+    psi_out_w: chex.Array  # f32[K, G, n]
+    psi_out_b: chex.Array  # f32[K, n]
 
 
 def mix(weights: MixWeights, q: chex.Array) -> chex.Array:
@@ -111,8 +140,37 @@ def mix(weights: MixWeights, q: chex.Array) -> chex.Array:
     """
     if weights.kind == "vdn":
         return jnp.sum(q, axis=-1)
+    if weights.kind == "qplex":
+        raise ValueError("mix: QPLEX needs the per-agent Q table and the actions; use mix_actions")
     hidden = jax.nn.elu(jnp.sum(q[..., :, None] * weights.w1, axis=-2) + weights.b1)  # [..., E]
     return jnp.sum(hidden * weights.w2, axis=-1) + weights.b2
+
+
+def mix_actions(weights: MixWeights, q_table: chex.Array, actions: chex.Array, avail: chex.Array) -> chex.Array:
+    """Q_tot of joint ``actions`` i32[..., n] from the per-agent Q table ``q_table`` f32[..., n, A] (any mixer).
+
+    ``avail`` bool[..., n, A] gives QPLEX's ``V_i = max_{available a} Q_i``. Leading axes broadcast against the
+    weights' as in ``mix`` (e.g. candidates ``[C, B, T]``). Returns f32[broadcast leading axes].
+    """
+    from jaxmac.networks.agent import mask_unavailable
+    from jaxmac.targets import gather_q
+
+    lead = jnp.broadcast_shapes(q_table.shape[:-2], actions.shape[:-1])
+    q = gather_q(jnp.broadcast_to(q_table, lead + q_table.shape[-2:]), jnp.broadcast_to(actions, lead + actions.shape[-1:]))
+    if weights.kind != "qplex":
+        return mix(weights, q)
+    qp = weights.qplex
+    v = jnp.max(mask_unavailable(q_table, avail), axis=-1)
+    q_t, v_t = qp.w * q + qp.b, qp.w * v + qp.b
+    # ψ_k(s, a): the state part plus, for every agent, the row of its chosen action in the action table
+    k, n = qp.psi_action.shape[:2]
+    a = jnp.clip(actions, 0, qp.psi_action.shape[2] - 1)
+    per_agent = qp.psi_action[:, jnp.arange(n), a]  # [K, ..., n, G] (advanced indexing moves K first)
+    act = jnp.moveaxis(jnp.sum(per_agent, axis=-2), 0, -2)  # [..., K, G]
+    hidden = jax.nn.relu(qp.psi_state + act)
+    psi = jnp.einsum("...kg,kgn->...kn", hidden, qp.psi_out_w) + qp.psi_out_b
+    lam = jnp.sum(qp.key[..., None] * qp.agents * jax.nn.sigmoid(psi), axis=-2) + 1e-10  # [..., n] > 0
+    return jnp.sum(v_t, axis=-1) + jnp.sum(lam * (q_t - v_t), axis=-1)
 
 
 class HyperMLP(nn.Module):
@@ -145,6 +203,8 @@ class Mixer(nn.Module):
         if cfg.kind == "vdn":
             return MixWeights(None, None, None, None, kind="vdn"), None
         state = state.astype(jnp.float32)
+        if cfg.kind == "qplex":
+            return MixWeights(None, None, None, None, kind="qplex", qplex=self._qplex(state)), None
         atpg_out = None
         if cfg.kind == "atpg_qmix":
             if inputs is None:
@@ -164,6 +224,26 @@ class Mixer(nn.Module):
         w2 = jnp.abs(HyperMLP(hid, emb, name="f_w2")(state))
         b2 = HyperMLP(hid, 1, name="f_v")(state)[..., 0]
         return MixWeights(w1=w1, b1=b1, w2=w2, b2=b2, kind=cfg.kind), atpg_out
+
+    def _qplex(self, state):
+        cfg = self.config
+        n, k, hid, a = cfg.num_agents, cfg.qplex_heads, cfg.hyper_hidden, cfg.num_actions
+        lead = state.shape[:-1]
+        w = jnp.abs(HyperMLP(hid, n, name="q_w")(state)) + 1e-10
+        b = HyperMLP(hid, n, name="q_b")(state)
+        key = jnp.abs(HyperMLP(hid, k, name="lambda_key")(state))
+        agents = jnp.abs(HyperMLP(hid, k * n, name="lambda_agents")(state)).reshape(lead + (k, n))
+        psi_state = nn.Dense(k * hid, name="psi_state")(state).reshape(lead + (k, hid))
+        init = nn.initializers.lecun_normal()
+        # the one-hot-action rows of ψ's first layer, initialised as one Dense over [onehot(a_1), …, onehot(a_n)]
+        psi_action = self.param(
+            "psi_action", lambda key_, shape: jnp.transpose(init(key_, (n * a, k * hid)).reshape(n, a, k, hid),
+                                                             (2, 0, 1, 3)), (k, n, a, hid))
+        psi_out_w = self.param("psi_out_w", lambda key_, shape: jax.vmap(lambda kk: init(kk, shape[1:]))(
+            jax.random.split(key_, shape[0])), (k, hid, n))
+        psi_out_b = self.param("psi_out_b", nn.initializers.zeros_init(), (k, n))
+        return QPLEXWeights(w=w, b=b, key=key, agents=agents, psi_state=psi_state, psi_action=psi_action,
+                            psi_out_w=psi_out_w, psi_out_b=psi_out_b)
 
 
 @functools.partial(jax.jit, static_argnums=0)
