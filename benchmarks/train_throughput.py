@@ -1,14 +1,15 @@
-"""Training throughput of the compiled ToMacVF trainer, per seed and in total.
+"""Training throughput of the compiled trainer for any learner, per seed and in total.
 
-    python benchmarks/train_throughput.py --scenario boxpushing-6x6 [--seeds 1 4 8] [--workers 1 2] [--chunks 3]
-                                          [--set KEY=VALUE ...]
+    python benchmarks/train_throughput.py [--algorithm tomacvf] --scenario boxpushing-6x6 [--seeds 1 4 8]
+                                          [--workers 1 2] [--chunks 3] [--set KEY=VALUE ...]
 
 For every (seeds, workers) pair, each worker process compiles ``vmap(train_chunk)`` over its
 share of the seeds (compile time reported apart) and then times ``--chunks`` chunks of the
-scenario's paper configuration (the ring is filled during a warm-up chunk so gradient steps
-run). Printed: training episodes/s and env steps/s per seed and in total, wall and per
-CPU-second, and the ratio to the original implementation's recorded speed (BASELINES.md §4,
-Mac-IAICC; measured on this machine kind, per CPU-second of all its processes).
+scenario's configuration of that algorithm (warm-up chunks first fill the ring up to where
+gradient steps run). Printed: training episodes/s and env steps/s per seed and in total, wall and
+per CPU-second, and the ratio to the original implementation's recorded speed per CPU-second of
+all its processes (BASELINES.md §4, measured on this machine kind): the same learner where the
+original has it, Mac-IAICC (the fastest original) for ToMacVF.
 """
 
 from __future__ import annotations
@@ -19,11 +20,16 @@ import subprocess
 import sys
 import time
 
-# Mac-IAICC, the fastest original learner (BASELINES.md §4): (episodes/CPU-s, env steps/CPU-s).
-ORIGINAL = {"boxpushing-6x6": (37.133, 875.7), "overcooked-A": (2.719, 546.8)}
+# The originals' recorded speed (BASELINES.md §4): (episodes/CPU-s, env steps/CPU-s, which original).
+ORIGINAL = {
+    "tomacvf": {"boxpushing-6x6": (37.133, 875.7, "Mac-IAICC"), "overcooked-A": (2.719, 546.8, "Mac-IAICC")},
+    "maccen_ddrqn": {"boxpushing-6x6": (5.176, 133.8, "MacCen-Q"), "overcooked-A": (0.577, 115.8, "MacCen-Q")},
+    "macdec_ddrqn": {"boxpushing-6x6": (1.879, 63.3, "MacDec-DDRQN"), "overcooked-A": (0.565, 113.0, "MacDec-DDRQN")},
+    "macdec_q": {"boxpushing-6x6": (11.876, 288.2, "MacDec-Q"), "overcooked-A": (0.782, 157.7, "MacDec-Q")},
+}
 
 
-def measure(scenario: str, seeds: int, seed_offset: int, chunks: int, assignments: list[str]) -> dict:
+def measure(algorithm: str, scenario: str, seeds: int, seed_offset: int, chunks: int, assignments: list[str]) -> dict:
     """Compile and time the trainer in this process (one worker)."""
     import jax
     import jax.numpy as jnp
@@ -33,7 +39,7 @@ def measure(scenario: str, seeds: int, seed_offset: int, chunks: int, assignment
     from jaxmac.config import make_env, scenario_config
     from jaxmac.trainer import make_train
 
-    config = scenario_config(scenario).override_strings(assignments)
+    config = scenario_config(scenario, algorithm).override_strings(assignments)
     env = make_env(config)
     trainer = make_train(config, env, make_algorithm(config, env))
     keys = jax.vmap(jax.random.key)(jnp.arange(seed_offset, seed_offset + seeds))
@@ -41,7 +47,8 @@ def measure(scenario: str, seeds: int, seed_offset: int, chunks: int, assignment
     t0 = time.perf_counter()
     chunk = jax.jit(jax.vmap(trainer.train_chunk), donate_argnums=0).lower(state).compile()
     compile_s = time.perf_counter() - t0
-    warm = max(1, -(-config.batch_size // (config.num_envs * trainer.rounds_per_chunk)))
+    needed = config.start_train_episodes or config.batch_size
+    warm = max(1, -(-needed // (config.num_envs * trainer.rounds_per_chunk)) + 1)
     for _ in range(warm):  # fill the ring so that gradient steps really run
         state, _ = chunk(state)
     episodes = steps = 0
@@ -55,11 +62,12 @@ def measure(scenario: str, seeds: int, seed_offset: int, chunks: int, assignment
             "episodes": episodes, "env_steps": steps}
 
 
-def run_workers(scenario: str, seeds: int, workers: int, chunks: int, assignments: list[str]) -> list[dict]:
+def run_workers(algorithm: str, scenario: str, seeds: int, workers: int, chunks: int,
+                assignments: list[str]) -> list[dict]:
     """``workers`` concurrent processes, each measuring its share of the seeds."""
     share = [seeds // workers + (k < seeds % workers) for k in range(workers)]
     offsets = [sum(share[:k]) for k in range(workers)]
-    procs = [subprocess.Popen([sys.executable, __file__, "--child", scenario, str(s), str(o), str(chunks),
+    procs = [subprocess.Popen([sys.executable, __file__, "--child", algorithm, scenario, str(s), str(o), str(chunks),
                               json.dumps(assignments)],
                               stdout=subprocess.PIPE, text=True) for s, o in zip(share, offsets) if s > 0]
     out = []
@@ -73,10 +81,14 @@ def run_workers(scenario: str, seeds: int, workers: int, chunks: int, assignment
 
 def main(argv=None) -> None:
     if argv is None and len(sys.argv) > 1 and sys.argv[1] == "--child":
-        scenario, seeds, offset, chunks = sys.argv[2], int(sys.argv[3]), int(sys.argv[4]), int(sys.argv[5])
-        print(json.dumps(measure(scenario, seeds, offset, chunks, json.loads(sys.argv[6]))))
+        algorithm, scenario = sys.argv[2], sys.argv[3]
+        seeds, offset, chunks = int(sys.argv[4]), int(sys.argv[5]), int(sys.argv[6])
+        print(json.dumps(measure(algorithm, scenario, seeds, offset, chunks, json.loads(sys.argv[7]))))
         return
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    from jaxmac.algos import REGISTRY
+
+    p.add_argument("--algorithm", default="tomacvf", choices=list(REGISTRY))
     p.add_argument("--scenario", default="boxpushing-6x6")
     p.add_argument("--seeds", type=int, nargs="+", default=[1, 4, 8])
     p.add_argument("--workers", type=int, nargs="+", default=[1, 2])
@@ -86,17 +98,17 @@ def main(argv=None) -> None:
     args = p.parse_args(argv)
     from jaxmac.config import scenario_config
 
-    scenario_config(args.scenario).override_strings(args.assignments)  # bad values fail here, not in a worker
-    ref = ORIGINAL.get(args.scenario)
-    setting = ", ".join(args.assignments) or "paper configuration (DECISIONS D13)"
-    print(f"{args.scenario}: ToMacVF, {setting}; rates over the timed chunks (compile apart)")
+    scenario_config(args.scenario, args.algorithm).override_strings(args.assignments)  # bad values fail here
+    ref = ORIGINAL.get(args.algorithm, {}).get(args.scenario)
+    setting = ", ".join(args.assignments) or "the scenario's configuration"
+    print(f"{args.scenario}: {args.algorithm}, {setting}; rates over the timed chunks (compile apart)")
     print(f"{'seeds':>5} {'workers':>7} {'compile s':>9} {'ep/s total':>10} {'ep/s/seed':>9} {'steps/s':>9} "
           f"{'ep/CPU-s':>9}" + ("  vs original (episodes per CPU-second)" if ref else ""))
     for seeds in args.seeds:
         for workers in args.workers:
             if workers > seeds:
                 continue
-            res = run_workers(args.scenario, seeds, workers, args.chunks, args.assignments)
+            res = run_workers(args.algorithm, args.scenario, seeds, workers, args.chunks, args.assignments)
             wall = max(r["wall_s"] for r in res)
             episodes = sum(r["episodes"] for r in res)
             steps = sum(r["env_steps"] for r in res)
@@ -104,7 +116,7 @@ def main(argv=None) -> None:
             line = (f"{seeds:>5} {workers:>7} {max(r['compile_s'] for r in res):>9.1f} {episodes / wall:>10.1f} "
                     f"{episodes / wall / seeds:>9.2f} {steps / wall:>9.0f} {episodes / cpu:>9.1f}")
             if ref:
-                line += f"  {episodes / cpu / ref[0]:.2f}x ({ref[0]} for Mac-IAICC)"
+                line += f"  {episodes / cpu / ref[0]:.2f}x ({ref[0]} for the original {ref[2]})"
             print(line, flush=True)
 
 

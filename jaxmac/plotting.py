@@ -45,29 +45,40 @@ def mean_and_standard_error(values: np.ndarray) -> tuple[np.ndarray, np.ndarray 
     return mean, values.std(0, ddof=1) / np.sqrt(values.shape[0])
 
 
-def plot_learning_curve(csv_path: str, png_path: str, title: str, optimum: float | None = None,
-                        window: int = 10) -> None:
-    """Mean ± s.e. over seeds of the smoothed greedy evaluation return."""
+def plot_curves(curves: list[tuple[str, np.ndarray, np.ndarray]], png_path: str, title: str,
+                optimum: float | None = None, window: int = 10, pdf: bool = False) -> None:
+    """Several learning curves on one axis: for each ``(label, episodes [P], values [seeds, P])`` the mean ± s.e.
+    over seeds of the trailing ``window``-point moving average (DECISIONS D15); ``pdf`` also writes a PDF."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    episodes, values = read_eval_curves(csv_path)
     fig, ax = plt.subplots(figsize=(6.4, 4.0), dpi=120)
-    if values.size:
+    for label, episodes, values in curves:
+        if not values.size:
+            continue
         sm = smooth(values, window)
         mean, se = mean_and_standard_error(sm)
         se = np.zeros_like(mean) if se is None else se
-        ax.plot(episodes, mean, label=f"ToMacVF (mean of {sm.shape[0]} seeds)")
-        ax.fill_between(episodes, mean - se, mean + se, alpha=0.3, label="± standard error")
+        (line,) = ax.plot(episodes, mean, label=f"{label} ({sm.shape[0]} seeds)")
+        ax.fill_between(episodes, mean - se, mean + se, alpha=0.25, color=line.get_color())
     if optimum is not None:
         ax.axhline(optimum, color="k", ls="--", lw=1, label=f"optimal ({optimum:.1f})")
     ax.set_xlabel("training episodes")
     ax.set_ylabel("greedy discounted return")
-    ax.set_title(title)
+    ax.set_title(title + f" (mean ± s.e., {window}-point moving average)", fontsize=9)
     ax.grid(alpha=0.3)
-    ax.legend(loc="lower right")
+    ax.legend(loc="lower right", fontsize=8)
     fig.tight_layout()
     fig.savefig(png_path)
+    if pdf:
+        fig.savefig(png_path.rsplit(".", 1)[0] + ".pdf")
     plt.close(fig)
+
+
+def plot_learning_curve(csv_path: str, png_path: str, title: str, optimum: float | None = None,
+                        window: int = 10, label: str = "greedy return") -> None:
+    """Mean ± s.e. over seeds of the smoothed greedy evaluation return of one run's ``metrics.csv``."""
+    episodes, values = read_eval_curves(csv_path)
+    plot_curves([(label, episodes, values)], png_path, title, optimum, window)

@@ -329,7 +329,8 @@ def _finish(trainer, state, out_dir, meta, wall_seconds):
     }
     write_json_atomic(os.path.join(out_dir, "summary.json"), summary)
     plot_learning_curve(os.path.join(out_dir, "metrics.csv"), os.path.join(out_dir, "curve.png"),
-                        f"{config.algorithm} on {config.scenario}", OPTIMAL_DISC_RETURN.get(config.scenario))
+                        f"{config.algorithm} on {config.scenario}", OPTIMAL_DISC_RETURN.get(config.scenario),
+                        label=config.algorithm)
     return summary
 
 

@@ -159,7 +159,8 @@ def merge(out_dir: str, jobs: list[str], wall_seconds: float) -> dict[str, Any]:
     summary.update(seeds=len(summary["final_greedy_return"]), workers=len(jobs), wall_seconds=wall_seconds)
     write_json_atomic(os.path.join(out_dir, "summary.json"), summary)
     plot_learning_curve(os.path.join(out_dir, "metrics.csv"), os.path.join(out_dir, "curve.png"),
-                        f"{summary['algorithm']} on {summary['scenario']}", summary["optimal_return"])
+                        f"{summary['algorithm']} on {summary['scenario']}", summary["optimal_return"],
+                        label=summary["algorithm"])
     return summary
 
 
