@@ -2,7 +2,7 @@
 
     python experiments/results_table.py RUN_DIR [RUN_DIR ...]
 
-One row per run: scenario, seeds, episodes per seed, final greedy discounted return (mean ± standard error
+One row per run: scenario, algorithm, seeds, episodes per seed, final greedy discounted return (mean ± standard error
 over seeds, and the per-seed values), the optimal return where known, the fraction of it reached, the
 settings that differ from the scenario's defaults, and the run's wall time.
 """
@@ -28,10 +28,10 @@ def _changed_settings(run_dir: pathlib.Path, scenario: str) -> str:
 
 
 def table_rows(run_dirs: list[pathlib.Path]) -> list[str]:
-    header = ("| scenario | seeds | episodes/seed | final greedy return (mean ± s.e.) | per seed | optimal | "
+    header = ("| scenario | algorithm | seeds | episodes/seed | final greedy return (mean ± s.e.) | per seed | optimal | "
               "reached | settings | wall time |")
     rows = [header,
-            "|---|---|---|---|---|---|---|---|---|"]
+            "|---|---|---|---|---|---|---|---|---|---|"]
     for run_dir in run_dirs:
         summary = json.loads((run_dir / "summary.json").read_text())
         values = summary["final_greedy_return"]
@@ -40,7 +40,7 @@ def table_rows(run_dirs: list[pathlib.Path]) -> list[str]:
         optimal = summary.get("optimal_return")
         reached = f"{mean / optimal:.0%}" if optimal else "–"
         per_seed = " ".join(f"{v:.1f}" for v in values)
-        rows.append(f"| {summary['scenario']} | {summary['seeds']} | {summary['episodes']:,} | {mean:.1f} ± {se} | "
+        rows.append(f"| {summary['scenario']} | {summary.get('algorithm', 'tomacvf')} | {summary['seeds']} | {summary['episodes']:,} | {mean:.1f} ± {se} | "
                     f"{per_seed} | {optimal if optimal else '–'} | {reached} | "
                     f"{_changed_settings(run_dir, summary['scenario'])} | {summary['wall_seconds'] / 60:.0f} min |")
     return rows

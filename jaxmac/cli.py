@@ -49,7 +49,6 @@ def cmd_rollout(args) -> int:
 def cmd_train(args) -> int:
     from jaxmac.config import scenario_config
     from jaxmac.run import default_out_dir, enable_compilation_cache, resume_run, train_run
-
     from jaxmac.workers import is_worker_run, resume_workers, train_workers
 
     enable_compilation_cache()

@@ -92,7 +92,9 @@ def make_train(
     # the ring must hold a batch of episodes, or start_train episodes where the data source sets that
     min_episodes = config.start_train_episodes or config.batch_size
     if min_episodes > config.buffer_episodes:
-        raise ValueError(f"start_train_episodes={min_episodes} exceeds buffer_episodes={config.buffer_episodes}")
+        raise ValueError(f"training starts when the ring holds {min_episodes} episodes (start_train_episodes="
+                         f"{config.start_train_episodes}, or batch_size={config.batch_size} when that is 0), more than "
+                         f"buffer_episodes={config.buffer_episodes}")
     polyak = config.target_polyak
 
     def init(key: chex.PRNGKey) -> TrainState:

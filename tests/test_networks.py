@@ -17,7 +17,6 @@ from _buffer_fixtures import config_for, synthetic_rollout
 
 from jaxmac.buffer import episode, views
 from jaxmac.encodings import EncodingConfig
-from jaxmac.targets import conditional_greedy, gather_q
 from jaxmac.networks import (
     ATPG,
     MASK_VALUE,
@@ -40,6 +39,7 @@ from jaxmac.networks import (
     temporal_mask,
     timestep_inputs,
 )
+from jaxmac.targets import conditional_greedy, gather_q
 
 N, O, A, S, B, T = 3, 5, 4, 6, 2, 10
 FAST = dict(xla_backend_optimization_level=0, xla_llvm_disable_expensive_passes=True)

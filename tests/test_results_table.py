@@ -32,10 +32,22 @@ def test_rows_report_mean_standard_error_and_changed_settings(tmp_path):
     header, rule, row_a, row_b = results_table.table_rows([a, b])
     assert header.count("|") == rule.count("|")
     cells = [c.strip() for c in row_a.strip("|").split("|")]
-    assert cells[:5] == ["boxpushing-6x6", "2", "800", "265.0 ± 5.0", "260.0 270.0"]
-    assert cells[6] == "98%" and cells[7] == "updates_per_round=4" and cells[8] == "2 min"
+    assert cells[:6] == ["boxpushing-6x6", "tomacvf", "2", "800", "265.0 ± 5.0", "260.0 270.0"]
+    assert cells[7] == "98%" and cells[8] == "updates_per_round=4" and cells[9] == "2 min"
     cells = [c.strip() for c in row_b.strip("|").split("|")]
-    assert cells[3] == "37.3 ± –" and cells[7] == "defaults"
+    assert cells[4] == "37.3 ± –" and cells[8] == "defaults"
+
+
+def test_a_baseline_is_compared_with_its_own_defaults(tmp_path):
+    run = tmp_path / "cen"
+    run.mkdir()
+    config = scenario_config("boxpushing-6x6", "maccen_ddrqn").override(episodes=800, rnn_size=32)
+    (run / "config.json").write_text(json.dumps({"config": config.to_dict()}))
+    (run / "summary.json").write_text(json.dumps({
+        "scenario": "boxpushing-6x6", "algorithm": "maccen_ddrqn", "seeds": 1, "episodes": 800, "wall_seconds": 60.0,
+        "optimal_return": 270.605, "final_greedy_return": [270.6]}))
+    cells = [c.strip() for c in results_table.table_rows([run])[2].strip("|").split("|")]
+    assert cells[1] == "maccen_ddrqn" and cells[8] == "rnn_size=32"
 
 
 def test_unfinished_run_is_named(tmp_path):

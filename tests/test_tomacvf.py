@@ -13,13 +13,12 @@ import optax
 import pytest
 from _buffer_fixtures import config_for, synthetic_rollout
 
-from jaxmac.buffer import episode
-from jaxmac.buffer import ring as ring_lib
 from jaxmac.algos import make_algorithm
 from jaxmac.algos.base import Progress
-from jaxmac.networks import jert_sequence
+from jaxmac.buffer import episode
+from jaxmac.buffer import ring as ring_lib
 from jaxmac.config import make_env, scenario_config
-from jaxmac.networks import slot_inputs
+from jaxmac.networks import jert_sequence, slot_inputs
 from jaxmac.run import enable_compilation_cache, resume_run, train_run
 from jaxmac.trainer import make_train
 

@@ -10,28 +10,14 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 from _buffer_fixtures import config_for, synthetic_rollout
+from _value_references import brute_force_conditional_argmax, stack, step_by_step
 
 from jaxmac import centralised, targets
 from jaxmac.buffer import episode, windows
 from jaxmac.buffer import ring as ring_lib
 from jaxmac.networks.drqn import DRQN
 
-
 # --- the joint conditional argmax ---------------------------------------------------------------------
-
-
-def brute_force_conditional_argmax(q, avail, free, running, counts):
-    """Exhaustive search over every joint action with busy agents pinned and unavailable actions excluded."""
-    best, best_value = None, -np.inf
-    for joint in itertools.product(*[range(c) for c in counts]):
-        if any(not free[i] and joint[i] != running[i] for i in range(len(counts))):
-            continue
-        if any(free[i] and not avail[i, joint[i]] for i in range(len(counts))):
-            continue
-        index = np.ravel_multi_index(joint, counts)
-        if q[index] > best_value:
-            best, best_value = joint, q[index]
-    return best
 
 
 @pytest.mark.parametrize("counts", [(8, 8), (14, 14, 14), (6, 6, 6, 7)], ids=["boxpushing", "overcooked", "warehouse-E"])
@@ -64,10 +50,6 @@ def test_ravel_and_unravel_joint_match_numpy():
 # --- trace_len windows ----------------------------------------------------------------------------------
 
 H, N, GAMMA, L = 24, 2, 0.9, 5
-
-
-def stack(items):
-    return jax.tree_util.tree_map(lambda *x: jnp.stack(x), *items)
 
 
 def episode_slot(seed, length, end="truncated"):
@@ -106,9 +88,13 @@ def test_jert_window_equals_the_originals_squeezed_window(seed, length):
     reference = reference_windows(mac_done, reward, length, info["obs_macro"], L)
     assert len(reference) == length + L - 1
     firsts = jnp.asarray(sorted(reference), jnp.int32)
-    stored = stack([windows.store_views(jert=True, cert=False)(slot)])
-    batch = windows.window_views(stored, jnp.zeros_like(firsts), firsts, L)
-    view, obs = jax.jit(windows.jert_window)(batch)
+
+    @jax.jit
+    def window(slot, firsts):
+        stored = stack([windows.store_views(jert=True, cert=False)(slot)])
+        return windows.jert_window(windows.window_views(stored, jnp.zeros_like(firsts), firsts, L))
+
+    view, obs = window(slot, firsts)
     for b, first in enumerate(sorted(reference)):
         want = reference[first]
         count = int(view.mask[b].sum())
@@ -124,23 +110,13 @@ def test_jert_window_equals_the_originals_squeezed_window(seed, length):
 
 
 def test_sample_windows_is_uniform_over_all_windows_of_the_ring():
-    store = windows.store_views(jert=True, cert=False)
+    store = jax.jit(windows.store_views(jert=True, cert=False))
     slots = [episode_slot(s, length)[0] for s, length in ((0, 5), (1, 15))]
     ring = ring_lib.init(store(episode.empty_slot(config_for(H, N, GAMMA))), 4)
     ring = ring_lib.add(ring, stack([store(s) for s in slots]))
-    captured, original = {}, windows.window_views
-
-    def spy(stored, idx, first_step, length):  # records which windows were drawn
-        captured.update(idx=idx, first=first_step)
-        return original(stored, idx, first_step, length)
-
-    windows.window_views = spy
-    try:
-        windows.sample_windows(ring, jax.random.key(0), 40_000, L)  # eager, so the spy sees concrete arrays
-    finally:
-        windows.window_views = original
-    lengths = np.asarray(ring.slots.length)[np.asarray(captured["idx"])]
-    first = np.asarray(captured["first"])
+    idx, first = jax.jit(windows.draw_windows, static_argnums=(2, 3))(ring, jax.random.key(0), 40_000, L)
+    lengths = np.asarray(ring.slots.length)[np.asarray(idx)]
+    first = np.asarray(first)
     short = lengths == 5
     # episode of T steps has T + L - 1 windows: 9 and 19 of 28
     np.testing.assert_allclose(short.mean(), 9 / 28, atol=0.01)
@@ -161,16 +137,15 @@ def test_maccen_loss_equals_a_step_by_step_reference():
     cases = [episode_slot(s, length, end) for s, length, end in ((3, 24, "none"), (4, 11, "terminated"),
                                                                  (5, 16, "truncated"))]
     firsts = [-2, 0, 7]
-    stored = stack([windows.store_views(jert=True, cert=False)(c[0]) for c in cases])
-    batch = windows.window_views(stored, jnp.arange(3), jnp.asarray(firsts, jnp.int32), L)
-    loss, metrics, _, _ = centralised.conditional_double_q_loss(net, params, target, batch, counts)
+    @jax.jit
+    def loss_fn(slots, firsts):
+        stored = jax.vmap(windows.store_views(jert=True, cert=False))(slots)
+        batch = windows.window_views(stored, jnp.arange(3), firsts, L)
+        return centralised.conditional_double_q_loss(net, params, target, batch, counts)[:2]
 
-    def q_seq(p, xs):  # step by step from a zero state
-        h, out = jnp.zeros(5), []
-        for x in xs:
-            q, h = net.apply(p, jnp.asarray(x, jnp.float32).reshape(1, -1), jnp.zeros((1,), bool), h)
-            out.append(np.asarray(q[0]))
-        return out
+    loss, metrics = loss_fn(stack([c[0] for c in cases]), jnp.asarray(firsts, jnp.int32))
+    step = jax.jit(lambda p, x, h: net.apply(p, x.reshape(1, -1), jnp.zeros((1,), bool), h))
+    q_seq = lambda p, xs: step_by_step(step, p, xs, jnp.zeros(5))  # noqa: E731  from a zero state
 
     squared = []
     for (slot, mac_done, reward, info), first in zip(cases, firsts):

@@ -37,5 +37,5 @@ def make_macdec_q(config: TrainConfig, env: MacroEnv) -> Algorithm:
         init_params=lambda key: decentralised.init_agent_drqn(net, key, spec.num_agents, spec.obs_dim),
         init_carry=lambda n: jnp.zeros((n, settings.rnn_size), jnp.float32), act=act, loss=loss,
         optimizer=default_optimizer(config), store=windows.store_views(jert=False, cert=True),
-                     sample=windows.window_source(config.batch_size, settings.trace_len),
+        sample=windows.window_source(config.batch_size, settings.trace_len),
         behaviour_act=behaviour_act)

@@ -25,7 +25,6 @@ used. In ``mac_jert`` mode the GRU steps only at joint decision points, as in tr
 
 from __future__ import annotations
 
-import chex
 import jax
 import jax.numpy as jnp
 

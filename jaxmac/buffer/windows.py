@@ -60,20 +60,23 @@ def sample_windows(ring: ring_lib.RingState, key: chex.PRNGKey, batch_size: int,
     """``batch_size`` windows of ``length`` steps from a ring of ``StoredViews``, uniform over every window of every
     stored episode (an episode of ``T`` steps has ``T + length − 1``), with replacement; ``length = 0``: whole
     episodes, uniformly."""
+    idx, first = draw_windows(ring, key, batch_size, length)
+    return window_views(ring.slots, idx, first, length)
+
+
+def draw_windows(ring: ring_lib.RingState, key: chex.PRNGKey, batch_size: int, length: int):
+    """Which windows ``sample_windows`` takes: ring positions ``idx`` i32[B] and first steps i32[B]."""
     if not isinstance(length, int) or isinstance(length, bool) or length < 0:
         raise ValueError(f"sample_windows: length={length!r} must be a non-negative integer (0 = whole episodes)")
-    k_slot, k_start = jax.random.split(key)
     if length == 0:
-        idx = jax.random.randint(k_slot, (batch_size,), 0, jnp.maximum(ring.count, 1), dtype=jnp.int32)
-        return window_views(ring.slots, idx, jnp.zeros((batch_size,), jnp.int32), 0)
-    del k_start
+        idx = jax.random.randint(key, (batch_size,), 0, jnp.maximum(ring.count, 1), dtype=jnp.int32)
+        return idx, jnp.zeros((batch_size,), jnp.int32)
     filled = jnp.arange(ring.capacity) < ring.count
     windows = jnp.where(filled, ring.slots.length + length - 1, 0).astype(jnp.int32)  # [N]
     ends = jnp.cumsum(windows)  # window w (0-based, over the whole ring) lives in the episode whose range holds it
-    w = jax.random.randint(k_slot, (batch_size,), 0, jnp.maximum(ends[-1], 1), dtype=jnp.int32)
+    w = jax.random.randint(key, (batch_size,), 0, jnp.maximum(ends[-1], 1), dtype=jnp.int32)
     idx = jnp.searchsorted(ends, w, side="right").astype(jnp.int32)
-    first = w - (ends[idx] - windows[idx]) - (length - 1)
-    return window_views(ring.slots, idx, first, length)
+    return idx, w - (ends[idx] - windows[idx]) - (length - 1)
 
 
 def window_views(stored: StoredViews, idx: chex.Array, first_step: chex.Array, length: int) -> WindowBatch:

@@ -1,0 +1,72 @@
+"""The shared run machinery every learner uses: every metric reaches metrics.csv, a diverging run stops with a message
+naming seed, round and metric and keeps its last good checkpoint, and a diverged run continues with other settings."""
+
+from __future__ import annotations
+
+import csv
+import json
+
+import numpy as np
+import pytest
+
+from jaxmac import run as run_lib
+from jaxmac.config import scenario_config
+from jaxmac.run import check_finite, resume_run, train_run
+
+CONFIG = scenario_config("boxpushing-6x6", "maccen_ddrqn", tiny=True).override(horizon=20, episodes=48, num_envs=8)
+
+
+def test_check_finite_names_seed_round_and_metric():
+    ok = {"round_updates": np.array([[0, 3], [0, 2]]), "loss": np.array([[np.nan, 1.0], [np.nan, 2.0]]),
+          "grad_norm": np.array([[np.nan, 1.0], [np.nan, 1.0]]), "param_norm": np.ones((2, 2))}
+    assert check_finite(ok, [5, 6], 10) is None  # NaN loss only where no gradient step ran
+    bad = dict(ok, loss=np.array([[np.nan, 1.0], [np.nan, np.inf]]))
+    assert check_finite(bad, [5, 6], 10) == "seed 6, round 11: loss = inf"
+    bad = dict(ok, param_norm=np.array([[1.0, 1.0], [np.nan, 1.0]]))
+    assert check_finite(bad, [5, 6], 10) == "seed 6, round 10: param_norm = nan"
+
+
+@pytest.fixture(scope="module")
+def finished(tmp_path_factory):
+    out = tmp_path_factory.mktemp("run") / "cen"
+    summary = train_run(CONFIG, 2, str(out), rounds_per_chunk=2, progress=False)
+    return out, summary
+
+
+def test_every_reported_metric_is_a_column(finished):
+    out, summary = finished
+    with open(out / "metrics.csv", newline="") as f:
+        rows = list(csv.DictReader(f))
+    columns = set(rows[0])
+    for name in ("seed", "round", "episodes", "env_steps", "updates", "round_updates", "loss", "grad_norm",
+                 "param_norm", "cen_loss", "cen_q_mean", "jert_entries", "eval_disc_return"):
+        assert name in columns, name
+    assert len(rows) == 2 * 48 // 8
+    trained = [r for r in rows if float(r["round_updates"]) > 0]
+    assert trained and all(np.isfinite(float(r["cen_loss"])) for r in trained)
+    assert summary["algorithm"] == "maccen_ddrqn"
+
+
+def test_a_diverging_run_stops_and_continues_with_other_settings(tmp_path, monkeypatch):
+    out = tmp_path / "div"
+    calls = {"n": 0}
+    real = run_lib.check_finite
+
+    def diverge_on_second_chunk(metrics, seed_ids, first_round):
+        calls["n"] += 1
+        return "seed 1, round 3: loss = nan" if calls["n"] == 2 else real(metrics, seed_ids, first_round)
+
+    monkeypatch.setattr(run_lib, "check_finite", diverge_on_second_chunk)
+    with pytest.raises(RuntimeError, match="diverged at seed 1, round 3: loss = nan.*--resume"):
+        train_run(CONFIG, 2, str(out), rounds_per_chunk=2, progress=False, checkpoint_seconds=0.0)
+    record = json.loads((out / "diverged.json").read_text())
+    assert record["last_good_checkpoint"] == 1  # the diverged chunk was not saved
+    monkeypatch.setattr(run_lib, "check_finite", real)
+    with pytest.raises(ValueError, match="belongs to"):  # a bad setting is refused before anything changes
+        resume_run(str(out), progress=False, assignments=["overestimate_weight=0.5"])
+    summary = resume_run(str(out), progress=False, assignments=["lr=0.0005"])
+    assert summary["episodes"] == 48
+    meta = json.loads((out / "config.json").read_text())
+    assert meta["config"]["lr"] == 0.0005 and meta["changed_after_divergence"] == ["lr=0.0005"]
+    with pytest.raises(ValueError, match="did not diverge"):
+        resume_run(str(out), progress=False, assignments=["lr=0.001"])
