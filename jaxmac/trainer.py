@@ -145,7 +145,7 @@ def make_train(
             carry, metrics = jax.lax.scan(gradient_step, carry, jax.random.split(k_update, config.updates_per_round))
             return carry, jax.tree_util.tree_map(jnp.mean, metrics)
 
-        def counted_updates(carry):
+        def counted_updates(carry, count):
             shapes = jax.eval_shape(lambda c: gradient_step(c, k_update)[1], carry)
             zeros = jax.tree_util.tree_map(lambda s: jnp.zeros(s.shape, s.dtype), shapes)
 
@@ -154,17 +154,22 @@ def make_train(
                 carry, metrics = gradient_step(carry, jax.random.fold_in(k_update, i))
                 return carry, jax.tree_util.tree_map(jnp.add, sums, metrics)
 
-            carry, sums = jax.lax.fori_loop(0, n_updates, body, (carry, zeros))
-            return carry, jax.tree_util.tree_map(lambda x: x / jnp.maximum(n_updates, 1).astype(x.dtype), sums)
-
-        run_updates = counted_updates if config.train_every_steps else fixed_updates
+            carry, sums = jax.lax.fori_loop(0, count, body, (carry, zeros))
+            nan = jnp.full((), jnp.nan)
+            return carry, jax.tree_util.tree_map(
+                lambda x: jnp.where(count > 0, x / jnp.maximum(count, 1).astype(x.dtype), nan.astype(x.dtype)), sums)
 
         def skip_updates(carry):
-            shapes = jax.eval_shape(run_updates, carry)[1]
+            shapes = jax.eval_shape(fixed_updates, carry)[1]
             return carry, jax.tree_util.tree_map(lambda s: jnp.full(s.shape, jnp.nan, s.dtype), shapes)
 
         ready = jnp.logical_and(ring.count >= min_episodes, n_updates > 0)
-        carry, loss_metrics = jax.lax.cond(ready, run_updates, skip_updates, carry)
+        if config.train_every_steps:
+            # a loop of zero iterations before training starts, not a cond: under vmap over seeds a cond runs
+            # both branches, and the gradient steps of not-ready seeds would be computed and thrown away
+            carry, loss_metrics = counted_updates(carry, jnp.where(ready, n_updates, 0))
+        else:
+            carry, loss_metrics = jax.lax.cond(ready, fixed_updates, skip_updates, carry)
         params, target_params, opt_state = carry[:3]
         if not polyak:
             if config.target_update_steps:

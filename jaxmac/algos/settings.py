@@ -87,7 +87,7 @@ class ToMacVFSettings:
 
 @dataclasses.dataclass(frozen=True)
 class DRQNSettings:
-    """Fields every MacroMARL value learner shares (BASELINES.md §1.0–1.3).
+    """Fields every MacroMARL-style recurrent value learner shares (BASELINES.md §1.0–1.3).
 
     ``trace_len`` > 0 samples windows of that many primitive steps from stored episodes (the originals on
     Box Pushing); 0 samples whole episodes (``sample_epi``). ``h_explore`` keeps the recurrent state while
@@ -99,28 +99,39 @@ class DRQNSettings:
     rnn_size: int = 32
     trace_len: int = 10
     h_explore: bool = False
-    # hysteresis β: TD errors where Q is above its target are scaled by β (δ ← max(βδ, δ)); linear from
-    # hysteresis_start to hysteresis_end over hysteresis_episodes training episodes counted from start_train
-    hysteresis_start: float = 1.0
-    hysteresis_end: float = 1.0
-    hysteresis_episodes: int = 1
 
     def _validate(self, owner: str) -> None:
-        _check_positive(owner, self, ("mlp_sizes", "rnn_size", "hysteresis_episodes"))
+        _check_positive(owner, self, ("mlp_sizes", "rnn_size"))
         if len(self.mlp_sizes) != 2:
             raise ValueError(f"{owner}: mlp_sizes={self.mlp_sizes!r} must have two widths (before and after the GRU)")
         if self.trace_len < 0:
             raise ValueError(f"{owner}: trace_len={self.trace_len!r} must be >= 0 (0 = whole episodes)")
-        for name in ("hysteresis_start", "hysteresis_end"):
-            _check_fraction(owner, name, getattr(self, name))
 
     def __post_init__(self):
         self._validate(type(self).__name__)
 
 
 @dataclasses.dataclass(frozen=True)
+class HystereticDRQNSettings(DRQNSettings):
+    """A DRQN learner with hysteresis β: TD errors where Q is above its target are scaled by β (δ ← max(βδ, δ));
+    β linear from ``hysteresis_start`` to ``hysteresis_end`` over ``hysteresis_episodes`` training episodes
+    counted from ``start_train_episodes`` (the originals' ``dynamic_h``)."""
+
+    hysteresis_start: float = 0.2
+    hysteresis_end: float = 0.4
+    hysteresis_episodes: int = 4000
+
+    def _validate(self, owner: str) -> None:
+        super()._validate(owner)
+        _check_positive(owner, self, ("hysteresis_episodes",))
+        for name in ("hysteresis_start", "hysteresis_end"):
+            _check_fraction(owner, name, getattr(self, name))
+
+
+@dataclasses.dataclass(frozen=True)
 class MacCenDDRQNSettings(DRQNSettings):
-    """Mac-Cen-DDRQN (MacCen-Q, BASELINES.md §1.2): one centralised recurrent Q over the joint action space."""
+    """Mac-Cen-DDRQN (MacCen-Q, BASELINES.md §1.2): one centralised recurrent Q over the joint action space (plain
+    MSE: the scripts' hysteresis is 1)."""
 
     rnn_size: int = 64
     max_joint_actions: int = 4096  # refuse envs whose joint macro-action space is larger
@@ -131,19 +142,15 @@ class MacCenDDRQNSettings(DRQNSettings):
 
 
 @dataclasses.dataclass(frozen=True)
-class MacDecQSettings(DRQNSettings):
+class MacDecQSettings(HystereticDRQNSettings):
     """MacDec-Q (Dec-HDDRQN on Mac-CERT, BASELINES.md §1.1): per-agent DRQNs, hysteretic double-Q."""
-
-    hysteresis_start: float = 0.2
-    hysteresis_end: float = 0.4
-    hysteresis_episodes: int = 4000
 
     def __post_init__(self):
         self._validate("macdec_q")
 
 
 @dataclasses.dataclass(frozen=True)
-class MacDecDDRQNSettings(DRQNSettings):
+class MacDecDDRQNSettings(HystereticDRQNSettings):
     """Mac-Dec-MADDRQN (BASELINES.md §1.3): MacCen-Q plus per-agent DRQNs whose targets take their component of
     the centralised conditional argmax. ``rnn_size``/``mlp_sizes`` are the decentralised nets'."""
 
@@ -152,9 +159,6 @@ class MacDecDDRQNSettings(DRQNSettings):
     cen_mlp_sizes: tuple[int, ...] = (32, 32)
     # behaviour policy: centralised conditional ε-greedy until cen_explore_episodes, then decentralised
     cen_explore_episodes: int = 1_000_000
-    hysteresis_start: float = 0.2
-    hysteresis_end: float = 0.4
-    hysteresis_episodes: int = 4000
     max_joint_actions: int = 4096
 
     def __post_init__(self):
