@@ -67,7 +67,7 @@ def plot_curves(curves: list[tuple[str, np.ndarray, np.ndarray]], png_path: str,
         ax.axhline(optimum, color="k", ls="--", lw=1, label=f"optimal ({optimum:.1f})")
     ax.set_xlabel("training episodes")
     ax.set_ylabel("greedy discounted return")
-    ax.set_title(title + f" (mean ± s.e., {window}-point moving average)", fontsize=9)
+    ax.set_title(f"{title}\nmean ± s.e. over seeds, {window}-point moving average", fontsize=9)
     ax.grid(alpha=0.3)
     ax.legend(loc="lower right", fontsize=8)
     fig.tight_layout()
