@@ -146,6 +146,11 @@ class TrainConfig:
             names = {f.name for f in dataclasses.fields(settings_cls)}
             block = {k: values.pop(k) for k in list(values) if k in names}
         block = {k: tuple(v) if isinstance(v, list) else v for k, v in block.items()}
+        names = {f.name for f in dataclasses.fields(settings_cls)}
+        unknown = sorted(set(block) - names)
+        if unknown:
+            raise ValueError(f"settings {unknown} are not fields of {algorithm}'s settings (valid: {sorted(names)}); "
+                             "the run was written by another version of jaxmac")
         return cls(**values, algo=settings_cls(**block))
 
 

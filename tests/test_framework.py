@@ -70,3 +70,11 @@ def test_a_diverging_run_stops_and_continues_with_other_settings(tmp_path, monke
     assert meta["config"]["lr"] == 0.0005 and meta["changed_after_divergence"] == ["lr=0.0005"]
     with pytest.raises(ValueError, match="did not diverge"):
         resume_run(str(out), progress=False, assignments=["lr=0.001"])
+
+
+def test_a_config_of_another_version_is_refused_naming_the_fields():
+    values = CONFIG.to_dict()
+    assert type(CONFIG).from_dict(values) == CONFIG  # the round trip of run folders
+    values["algo"]["hysteresis_start"] = 0.2  # not a Mac-Cen-DDRQN setting
+    with pytest.raises(ValueError, match=r"\['hysteresis_start'\] are not fields of maccen_ddrqn"):
+        type(CONFIG).from_dict(values)
