@@ -465,7 +465,7 @@ def test_take_rows_and_gather_q():
         (lambda: AgentNetConfig(num_agents=2, obs_dim=3, num_actions=2, head_hidden=[64]), "head_hidden"),
         (lambda: ATPGConfig(num_agents=2, obs_dim=3, num_actions=2, attn_window=0), "attn_window=0"),
         (lambda: ATPGConfig(num_agents=2, obs_dim=3, num_actions=2, delta=1.5), "delta=1.5"),
-        (lambda: MixerConfig(num_agents=2, state_dim=4, kind="qplex"), "valid choices"),
+        (lambda: MixerConfig(num_agents=2, state_dim=4, kind="qtran"), "valid choices"),
         (lambda: MixerConfig(num_agents=2, state_dim=4, kind="atpg_qmix"), "needs an ATPGConfig"),
         (lambda: MixerConfig(num_agents=3, state_dim=4, atpg=ATPGConfig(2, 3, 2)), "must equal"),
     ],
