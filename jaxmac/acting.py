@@ -24,12 +24,6 @@ def epsilon_schedule(config, episodes: chex.Array) -> chex.Array:
     return config.eps_start + frac * (config.eps_end - config.eps_start)
 
 
-def linear_schedule(start: float, end: float, duration: int, t: chex.Array) -> chex.Array:
-    """``start`` → ``end`` linearly over ``duration`` (≥ 1) units of ``t``, then ``end``."""
-    frac = jnp.clip(t / max(duration, 1), 0.0, 1.0)
-    return start + frac * (end - start)
-
-
 def epsilon_greedy(key: chex.PRNGKey, q: chex.Array, avail: chex.Array, free: chex.Array, running: chex.Array,
                    epsilon: chex.Array) -> chex.Array:
     """Per-agent ε-greedy among available actions for free agents; busy agents keep ``running``.

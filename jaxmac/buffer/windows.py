@@ -26,7 +26,7 @@ from flax import struct
 
 from jaxmac.buffer import ring as ring_lib
 from jaxmac.buffer import views
-from jaxmac.buffer.episode import EpisodeSlot, SlotConfig, empty_slot
+from jaxmac.buffer.episode import EpisodeSlot
 
 
 @struct.dataclass
@@ -158,11 +158,6 @@ def cert_window(batch: WindowBatch):
     """
     view = batch.cert
     return view, append_bootstrap(view.obs, view.obs_next, view.mask.sum(-1), axis=2)
-
-
-def empty_stored(config: SlotConfig, store) -> StoredViews:
-    """The stored form of an empty slot (to initialise the ring)."""
-    return store(empty_slot(config))
 
 
 def window_source(batch_size: int, trace_len: int):
