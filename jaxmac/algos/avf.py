@@ -23,11 +23,10 @@ import jax
 import jax.numpy as jnp
 
 from envs_jax.core import MacroEnv
-from jaxmac.acting import epsilon_greedy
 from jaxmac.algos.base import Algorithm, default_optimizer
 from jaxmac.buffer import windows
 from jaxmac.config import TrainConfig
-from jaxmac.decentralised import init_agent_drqn
+from jaxmac.decentralised import agents_step, init_agent_drqn
 from jaxmac.losses import masked_mean, td_mse
 from jaxmac.networks.drqn import AgentDRQN
 from jaxmac.networks.mixers import Mixer, MixerConfig, init_mixer_params, mix_actions
@@ -47,15 +46,8 @@ def make_avf(config: TrainConfig, env: MacroEnv) -> Algorithm:
         k_agent, k_mixer = jax.random.split(key)
         return {"agent": init_agent_drqn(net, k_agent, n, spec.obs_dim), "mixer": init_mixer_params(mixer_cfg, k_mixer)}
 
-    def step(params, carry, ts, key, epsilon, keep_history: bool):
-        carry = jnp.where(ts.t == 0, jnp.zeros_like(carry), carry)
-        start = carry if keep_history else jnp.zeros_like(carry)
-        x = jnp.asarray(ts.obs_macro, jnp.float32)[None]
-        q, new_carry = net.apply(params["agent"], x, jnp.zeros((1,), bool), start)
-        actions = epsilon_greedy(key, q[0], ts.avail_actions, ts.mac_done, ts.mac, epsilon)
-        if keep_history:  # Mac-JERT history: every agent's GRU steps at every joint decision point
-            carry = jnp.where(jnp.any(ts.mac_done), new_carry, carry)
-        return carry, actions
+    def step(params, carry, ts, key, epsilon, keep_history: bool):  # Mac-JERT history, as in training
+        return agents_step(net, params["agent"], carry, ts, key, epsilon, keep_history, joint_history=True)
 
     def conditioning(state, macro_state):
         if settings.macro_state:
