@@ -26,7 +26,7 @@ from envs_jax.core import MacroEnv
 from jaxmac.algos.base import Algorithm, default_optimizer
 from jaxmac.buffer import windows
 from jaxmac.config import TrainConfig
-from jaxmac.decentralised import agents_step, init_agent_drqn
+from jaxmac.decentralised import agents_step, init_agent_drqn, sequence_q
 from jaxmac.losses import masked_mean, td_mse
 from jaxmac.networks.drqn import AgentDRQN
 from jaxmac.networks.mixers import Mixer, MixerConfig, init_mixer_params, mix_actions
@@ -55,10 +55,7 @@ def make_avf(config: TrainConfig, env: MacroEnv) -> Algorithm:
         return state
 
     def agent_q(params, obs):  # obs f32[B, L + 1, n, O] -> Q f32[B, L + 1, n, A] from a zero state
-        b, steps = obs.shape[:2]
-        reset = jnp.broadcast_to(jnp.arange(steps) == 0, (b, steps))
-        q, _ = net.apply(params, obs.astype(jnp.float32), reset, jnp.zeros((b, n, settings.rnn_size)))
-        return q
+        return jnp.swapaxes(sequence_q(net, params, jnp.swapaxes(obs, 1, 2)), 1, 2)
 
     def loss(params, target_params, batch, key, progress):
         del key, progress
