@@ -26,6 +26,10 @@ ORIGINAL = {
     "maccen_ddrqn": {"boxpushing-6x6": (5.176, 133.8, "MacCen-Q"), "overcooked-A": (0.577, 115.8, "MacCen-Q")},
     "macdec_ddrqn": {"boxpushing-6x6": (1.879, 63.3, "MacDec-DDRQN"), "overcooked-A": (0.565, 113.0, "MacDec-DDRQN")},
     "macdec_q": {"boxpushing-6x6": (11.876, 288.2, "MacDec-Q"), "overcooked-A": (0.782, 157.7, "MacDec-Q")},
+    "mac_iaicc": {"boxpushing-6x6": (37.133, 875.7, "Mac-IAICC"), "overcooked-A": (2.719, 546.8, "Mac-IAICC")},
+    # no recorded rate of the originals' Mac-NIACC / Mac-CAC: Mac-IAICC's, whose runner and update they share
+    "mac_niacc": {"boxpushing-6x6": (37.133, 875.7, "Mac-IAICC"), "overcooked-A": (2.719, 546.8, "Mac-IAICC")},
+    "mac_cac": {"boxpushing-6x6": (37.133, 875.7, "Mac-IAICC"), "overcooked-A": (2.719, 546.8, "Mac-IAICC")},
 }
 
 

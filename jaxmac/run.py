@@ -310,9 +310,12 @@ def _finish(trainer, state, out_dir, meta, wall_seconds):
     config = trainer.config
     keys = jax.vmap(lambda s: jax.random.fold_in(jax.random.key(10_007), s))(
         jnp.arange(meta["seed_offset"], meta["seed_offset"] + meta["seeds"]))
-    stats = jax.jit(jax.vmap(lambda p, k: trainer.evaluate(p, k, config.eval_episodes)))(state.params, keys)
-    disc = np.asarray(stats["disc_return"]).mean(-1)
-    undisc = np.asarray(stats["return"]).mean(-1)
+    def final_returns(evaluate):
+        stats = jax.jit(jax.vmap(lambda p, k: evaluate(p, k, config.eval_episodes)))(state.params, keys)
+        return np.asarray(stats["disc_return"]).mean(-1), np.asarray(stats["return"]).mean(-1)
+
+    # greedy: the value learners' evaluation policy, the actor-critics' greedy_act (their sampled one is kept too)
+    disc, undisc = final_returns(trainer.evaluate_greedy or trainer.evaluate)
     summary = {
         "scenario": config.scenario,
         "algorithm": config.algorithm,
@@ -327,6 +330,10 @@ def _finish(trainer, state, out_dir, meta, wall_seconds):
         "final_greedy_return_undiscounted_mean": float(undisc.mean()),
         "optimal_return": OPTIMAL_DISC_RETURN.get(config.scenario),
     }
+    if trainer.evaluate_greedy:  # the stochastic evaluation policy of the originals (sampled, un-mixed)
+        sampled, sampled_undisc = final_returns(trainer.evaluate)
+        summary.update(final_sampled_return=sampled.tolist(), final_sampled_return_mean=float(sampled.mean()),
+                       final_sampled_return_undiscounted_mean=float(sampled_undisc.mean()))
     write_json_atomic(os.path.join(out_dir, "summary.json"), summary)
     plot_learning_curve(os.path.join(out_dir, "metrics.csv"), os.path.join(out_dir, "curve.png"),
                         f"{config.algorithm} on {config.scenario}", OPTIMAL_DISC_RETURN.get(config.scenario),

@@ -4,7 +4,8 @@
 
     init(key) -> TrainState
     train_chunk(state) -> (state, metrics)      # ``rounds_per_chunk`` rounds in one lax.scan
-    evaluate(params, key, episodes) -> stats    # greedy episodes with ``algorithm.act`` at ε = 0
+    evaluate(params, key, episodes) -> stats    # evaluation episodes with ``algorithm.act`` at ε = 0
+    evaluate_greedy(params, key, episodes)      # with ``algorithm.greedy_act`` (None when it has none)
 
 A *round* is: collect ``num_envs`` episodes with the behaviour policy (vmapped envs) → write them into
 the episode ring → training steps (``updates_per_round`` of them, or one per ``train_every_steps`` env
@@ -64,6 +65,7 @@ class Trainer:
     init: Callable[[chex.PRNGKey], TrainState]
     train_chunk: Callable[[TrainState], tuple[TrainState, dict[str, chex.Array]]]
     evaluate: Callable[[Any, chex.PRNGKey, int], dict[str, chex.Array]]
+    evaluate_greedy: Callable[[Any, chex.PRNGKey, int], dict[str, chex.Array]] | None = None
 
     @property
     def total_chunks(self) -> int:
@@ -109,9 +111,33 @@ def make_train(
             key=key, episodes=zero, env_steps=zero, updates=zero, rounds=zero,
         )
 
-    def evaluate(params, key, episodes: int) -> dict[str, chex.Array]:
-        _, traj, _ = run_episodes(env, algorithm.act, algorithm.init_carry, params, key, 0.0, episodes)
-        return episode_returns(traj, gamma)
+    def evaluate_with(act):
+        def evaluate(params, key, episodes: int) -> dict[str, chex.Array]:
+            _, traj, _ = run_episodes(env, act, algorithm.init_carry, params, key, 0.0, episodes)
+            return episode_returns(traj, gamma)
+
+        return evaluate
+
+    evaluate = evaluate_with(algorithm.act)
+    evaluate_greedy = evaluate_with(algorithm.greedy_act) if algorithm.greedy_act else None
+
+    def periodic_evaluation(run_eval, params, key) -> dict[str, chex.Array]:
+        """Mean evaluation returns when ``run_eval``, NaN otherwise (one row per round)."""
+        runs = {"eval": evaluate}
+        if evaluate_greedy:
+            runs["eval_greedy"] = evaluate_greedy
+        out = {}
+        for name, fn in runs.items():
+            stats = jax.lax.cond(
+                run_eval,
+                lambda fn=fn: fn(params, key, config.eval_episodes),
+                lambda fn=fn: jax.tree_util.tree_map(
+                    lambda s: jnp.zeros(s.shape, s.dtype), jax.eval_shape(lambda: fn(params, key, config.eval_episodes))),
+            )
+            nan = jnp.full((), jnp.nan, jnp.float32)
+            out[f"{name}_disc_return"] = jnp.where(run_eval, stats["disc_return"].mean(), nan)
+            out[f"{name}_return"] = jnp.where(run_eval, stats["return"].mean(), nan)
+        return out
 
     def gradient_step(carry, key):
         params, target_params, opt_state, ring, fresh, progress = carry
@@ -179,14 +205,6 @@ def make_train(
             copy_target = after // period > before // period
             target_params = jax.tree_util.tree_map(lambda p, t: jnp.where(copy_target, p, t), params, target_params)
         run_eval = episodes // config.eval_every_episodes > state.episodes // config.eval_every_episodes
-        nan = jnp.full((), jnp.nan, jnp.float32)
-        eval_stats = jax.lax.cond(
-            run_eval,
-            lambda: evaluate(params, k_eval, config.eval_episodes),
-            lambda: jax.tree_util.tree_map(
-                lambda s: jnp.zeros(s.shape, s.dtype), jax.eval_shape(lambda: evaluate(params, k_eval, config.eval_episodes))
-            ),
-        )
         updates = state.updates + jnp.where(ready, n_updates, 0)
         metrics = {
             "episodes": episodes,
@@ -197,8 +215,7 @@ def make_train(
             "train_return": collected["return"].mean(),
             "train_disc_return": collected["disc_return"].mean(),
             "train_length": collected["length"].mean(),
-            "eval_disc_return": jnp.where(run_eval, eval_stats["disc_return"].mean(), nan),
-            "eval_return": jnp.where(run_eval, eval_stats["return"].mean(), nan),
+            **periodic_evaluation(run_eval, params, k_eval),
             "param_norm": optax.tree.norm(params),
             **loss_metrics,
         }
@@ -214,5 +231,5 @@ def make_train(
     return Trainer(
         config=config, env=env, algorithm=algorithm, slot_config=slot_config,
         rounds_per_chunk=rounds_per_chunk, total_rounds=total_rounds,
-        init=init, train_chunk=train_chunk, evaluate=evaluate,
+        init=init, train_chunk=train_chunk, evaluate=evaluate, evaluate_greedy=evaluate_greedy,
     )

@@ -26,6 +26,10 @@ class Entry:
 _TINY_DRQN = dict(mlp_sizes=(8, 8), rnn_size=8, start_train_episodes=0, eps_decay_start=0, train_every_steps=20,
                   target_update_steps=200)
 
+# on-policy: the batch is the round's episodes, the ring keeps only their lengths
+_TINY_AC = dict(actor_mlp_sizes=(8, 8), actor_rnn_size=8, critic_mlp_sizes=(8, 8), critic_rnn_size=8, critic_mid_size=8,
+                batch_size=8, buffer_episodes=8, grad_clip=0.0)
+
 REGISTRY: dict[str, Entry] = {
     "tomacvf": Entry(
         s.ToMacVFSettings, "jaxmac.algos.tomacvf:make_tomacvf", s.TOMACVF,
@@ -44,6 +48,16 @@ REGISTRY: dict[str, Entry] = {
     "avf": Entry(
         s.AVFSettings, "jaxmac.algos.avf:make_avf", s.AVF, dict(_TINY_DRQN, mixer_embed=8, hyper_hidden=8),
         "AVF: per-agent recurrent Q on Mac-JERT mixed by VDN/QMIX/QPLEX, conditional double-Q, Polyak target"),
+    "mac_iaicc": Entry(
+        s.MacIAICCSettings, "jaxmac.algos.mac_iaicc:make_mac_iaicc", s.MAC_IAICC, _TINY_AC,
+        "Mac-IAICC: per-agent actors, individual centralised critics V_i (history or state), on-policy"),
+    "mac_niacc": Entry(
+        s.MacNIACCSettings, "jaxmac.algos.mac_niacc:make_mac_niacc", s.MAC_NIACC, _TINY_AC,
+        "Mac-NIACC: per-agent actors, one joint critic (history or state), the joint advantage, on-policy"),
+    "mac_cac": Entry(
+        s.MacCACSettings, "jaxmac.algos.mac_cac:make_mac_cac", s.MAC_CAC,
+        {k: v for k, v in _TINY_AC.items() if k != "critic_mid_size"},
+        "Mac-CAC: a joint actor over joint macro-actions and a joint history critic, on-policy"),
 }
 
 

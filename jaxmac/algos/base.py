@@ -47,7 +47,8 @@ class Algorithm:
     init_carry(num_agents) -> per-env policy carry (e.g. GRU states)
     act(params, carry, ts, key, epsilon) -> (carry, actions i32[n]): the greedy/evaluation policy (ε = 0) and,
         unless ``behaviour_act`` is given, the behaviour policy too
-    loss(params, target_params, batch, key, progress) -> (scalar, metrics dict of scalars)
+    loss(params, target_params, batch, key, progress) -> (scalar, metrics dict of scalars); None when ``update``
+        is the algorithm's own (the actor-critics' critic-then-actor steps)
     optimizer: the optax transformation ``update`` applies (``default_optimizer(config)`` unless given)
     update(params, target_params, opt_state, batch, key, progress) -> (params, opt_state, metrics): one
         training step on a batch; default ``gradient_update(loss, optimizer)``
@@ -57,29 +58,32 @@ class Algorithm:
         (leaves ``[E, ...]``); default: ``batch_size`` episodes drawn uniformly from the ring
     behaviour_act(params, carry, ts, key, epsilon, episodes) -> (carry, actions): the exploring policy while
         training, given the episodes trained so far (e.g. centralised exploration for a while)
+    greedy_act(params, carry, ts, key, epsilon) -> (carry, actions): for a stochastic evaluation policy (the
+        actor-critics evaluate by sampling, as their originals), its greedy version, evaluated and logged beside it
     """
 
     name: str
     init_params: Callable[[chex.PRNGKey], Any]
     init_carry: Callable[[int], Any]
     act: Act
-    loss: Loss
+    loss: Loss | None
     optimizer: optax.GradientTransformation
     update: Update | None = None
     store: Callable[[EpisodeSlot], Any] | None = None
     sample: Sample | None = None
     behaviour_act: BehaviourAct | None = None
+    greedy_act: Act | None = None
 
     def __post_init__(self):
+        if self.update is None and self.loss is None:
+            raise ValueError(f"algorithm {self.name!r} needs a loss (for the default one-step update) or an update")
         if self.update is None:
             object.__setattr__(self, "update", gradient_update(self.loss, self.optimizer))
 
 
 def default_optimizer(config) -> optax.GradientTransformation:
     """Adam at ``config.lr``, after global-norm clipping at ``config.grad_clip`` (none when it is 0)."""
-    if config.grad_clip == 0:
-        return optax.adam(config.lr)
-    return optax.chain(optax.clip_by_global_norm(config.grad_clip), optax.adam(config.lr))
+    return clipped_adam(config.lr, config.grad_clip)
 
 
 def gradient_update(loss: Loss, optimizer: optax.GradientTransformation) -> Update:
@@ -92,6 +96,46 @@ def gradient_update(loss: Loss, optimizer: optax.GradientTransformation) -> Upda
         return params, opt_state, dict(metrics, loss=value, grad_norm=optax.tree.norm(grads))
 
     return update
+
+
+def per_part_optimizer(parts: dict[str, optax.GradientTransformation]) -> optax.GradientTransformation:
+    """One optimiser per top-level part of the params (e.g. ``{"actor": adam(a_lr), "critic": adam(c_lr)}``), each
+    with its own state ``opt_state[part]``, so that an update may step one part before computing the other's
+    gradient (the actor-critics' critic-then-actor order). ``update`` on the whole tree steps every part."""
+
+    def init(params):
+        return {name: tx.init(params[name]) for name, tx in parts.items()}
+
+    def update(updates, state, params=None):
+        out, new_state = {}, {}
+        for name, tx in parts.items():
+            out[name], new_state[name] = tx.update(updates[name], state[name], None if params is None else params[name])
+        return out, new_state
+
+    return optax.GradientTransformation(init, update)
+
+
+def clipped_adam(lr: float, grad_clip: float) -> optax.GradientTransformation:
+    """Adam at ``lr`` after global-norm clipping at ``grad_clip`` (none when it is 0)."""
+    if grad_clip == 0:
+        return optax.adam(lr)
+    return optax.chain(optax.clip_by_global_norm(grad_clip), optax.adam(lr))
+
+
+def on_policy_source(prepare: Callable[[EpisodeSlot], Any]) -> Sample:
+    """The on-policy data source: the episodes just collected (leaves ``[E, ...]``), through ``prepare`` (the views
+    the learner trains on). The ring is not read; such a learner stores only each episode's length in it."""
+
+    def sample(ring, fresh, key):
+        del ring, key
+        return prepare(fresh)
+
+    return sample
+
+
+def store_length(slot: EpisodeSlot):
+    """``Algorithm.store`` of an on-policy learner: the ring keeps nothing but the episode's length."""
+    return slot.length
 
 
 def sample_episodes(batch_size: int) -> Sample:

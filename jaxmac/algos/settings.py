@@ -196,6 +196,76 @@ class AVFSettings(DRQNSettings):
         _check_positive("avf", self, ("mixer_embed", "hyper_hidden"))
 
 
+@dataclasses.dataclass(frozen=True)
+class ActorCriticSettings:
+    """What the macro-action actor-critics share (BASELINES.md §1.0, §1.4–1.6). The actor's learning rate is the
+    shared ``lr``; ``critic_lr`` the critic's. ``n_step`` macro transitions per critic target (the scripts'
+    ``n_step_TD``: 0 and 1 both mean one-step, written 1 here). Networks as the originals: fc–fc–GRU–fc–fc actors
+    and history critics, ``critic_mid_size`` the middle layer of a state critic."""
+
+    critic_lr: float = 1e-3
+    n_step: int = 1
+    actor_mlp_sizes: tuple[int, ...] = (32, 32)
+    actor_rnn_size: int = 32
+    critic_mlp_sizes: tuple[int, ...] = (32, 32)
+    critic_rnn_size: int = 32
+
+    def _validate(self, owner: str) -> None:
+        _check_positive(owner, self, ("n_step", "actor_mlp_sizes", "actor_rnn_size", "critic_mlp_sizes",
+                                      "critic_rnn_size"))
+        for name in ("actor_mlp_sizes", "critic_mlp_sizes"):
+            if len(getattr(self, name)) != 2:
+                raise ValueError(f"{owner}: {name}={getattr(self, name)!r} must have two widths (before and after "
+                                 "the GRU)")
+        if not 0.0 < self.critic_lr < 1.0:
+            raise ValueError(f"{owner}: critic_lr={self.critic_lr!r} must be in (0, 1)")
+
+
+@dataclasses.dataclass(frozen=True)
+class IndependentActorsSettings(ActorCriticSettings):
+    """Decentralised actors with a centralised critic that reads either the joint macro-observation history
+    (``critic='history'``, the originals' ``*ICC``/``*ACC``) or the global state at decision points
+    (``critic='state'``, ``*ISC``/``*ASC``, the Box Pushing scripts; a 5-layer MLP with ``critic_mid_size``)."""
+
+    critic: str = "history"
+    critic_mid_size: int = 32
+
+    def _validate(self, owner: str) -> None:
+        super()._validate(owner)
+        _check_choice(owner, "critic", self.critic, ("history", "state"))
+        _check_positive(owner, self, ("critic_mid_size",))
+        if self.critic == "state" and self.critic_mlp_sizes[0] != self.critic_mlp_sizes[1]:
+            raise ValueError(f"{owner}: critic='state' needs equal critic_mlp_sizes (its fc3 reads mlp[1] inputs, "
+                             f"as the original); got {self.critic_mlp_sizes!r}")
+
+
+@dataclasses.dataclass(frozen=True)
+class MacIAICCSettings(IndependentActorsSettings):
+    """Mac-IAICC (BASELINES.md §1.6): per-agent actors, an individual centralised critic V_i per agent."""
+
+    def __post_init__(self):
+        self._validate("mac_iaicc")
+
+
+@dataclasses.dataclass(frozen=True)
+class MacNIACCSettings(IndependentActorsSettings):
+    """Mac-NIACC (BASELINES.md §1.5): per-agent actors, one joint critic, the joint ("naive") advantage."""
+
+    def __post_init__(self):
+        self._validate("mac_niacc")
+
+
+@dataclasses.dataclass(frozen=True)
+class MacCACSettings(ActorCriticSettings):
+    """Mac-CAC (BASELINES.md §1.4): one joint actor over the joint macro-action space and one joint history critic."""
+
+    max_joint_actions: int = 4096
+
+    def __post_init__(self):
+        self._validate("mac_cac")
+        _check_positive("mac_cac", self, ("max_joint_actions",))
+
+
 # --- per-scenario values (flat: shared TrainConfig fields and the block's fields together) -------------
 
 BOXPUSHING = tuple(f"boxpushing-{g}x{g}" for g in (6, 8, 10, 12, 14))
@@ -306,3 +376,76 @@ AVF: dict[str, dict[str, Any]] = {
                h_explore=True)  # AVF is not MacroMARL's runner: it keeps its recurrent state while exploring
     for name in SCENARIOS
 }
+
+
+# MacroMARL's actor-critic scripts (experiments/*/mac_cac.sh, mac_iaicc.sh, mac_naive_iacc.sh; HYPERPARAMS.md):
+# on-policy, one critic and one actor step per round of n_env = train_freq episodes, hard target copy every
+# c_target_update_freq episodes, no gradient clipping, ε 1 → eps_end over eps_stable_at episodes from the start,
+# 10 evaluation episodes every eval_freq − eval_freq % train_freq episodes. Box Pushing runs the state critics
+# (MacIAISC / NaiveMacIASC). Columns: a_lr, c_lr, n_env, c_target_update_freq, n_step_TD, eps_end, eps_stable_at,
+# total_epi, a_rnn, c_rnn, c_mlp ("·" = the default).
+_D = None
+_AC_COLUMNS = ("lr", "critic_lr", "num_envs", "target_update_episodes", "n_step", "eps_end", "eps_decay_episodes",
+               "episodes", "actor_rnn_size", "critic_rnn_size", "critic_mlp_sizes")
+
+
+def _ac_rows(rows: dict[str, tuple], **extra) -> dict[str, dict[str, Any]]:
+    out = {}
+    for scenario, row in rows.items():
+        values = {k: v for k, v in zip(_AC_COLUMNS, row) if v is not _D}
+        e = values["num_envs"]
+        values.update(grad_clip=0.0, batch_size=e, buffer_episodes=e, updates_per_round=1, eps_start=1.0,
+                      eps_decay_start=0, start_train_episodes=0, train_every_steps=0, target_update_steps=0,
+                      target_polyak=0.0, eval_every_episodes=100 - 100 % e, eval_episodes=10,
+                      n_step=max(1, values["n_step"]), **extra.get(scenario.split("-")[0], {}))
+        out[scenario] = values
+    return out
+
+
+_OC_C = (128, 64)
+_STATE_BP = {"boxpushing": dict(critic="state")}
+MAC_CAC = _ac_rows({
+    "boxpushing-6x6": (1e-3, 3e-3, 2, 64, 3, 0.01, 4000, 40_000, _D, _D, _D),
+    "boxpushing-8x8": (3e-4, 3e-3, 32, 32, 3, 0.01, 4000, 40_000, _D, _D, _D),
+    "boxpushing-10x10": (5e-4, 1e-3, 32, 128, 3, 0.01, 6000, 40_000, _D, _D, _D),
+    "boxpushing-12x12": (1e-3, 3e-3, 8, 128, 0, 0.01, 6000, 40_000, _D, _D, _D),
+    "boxpushing-14x14": (1e-3, 1e-3, 16, 128, 3, 0.01, 8000, 40_000, _D, _D, _D),
+    "overcooked-A": (1e-4, 3e-3, 8, 32, 5, 0.05, 20_000, 100_000, _D, 64, _OC_C),
+    "overcooked-B": (1e-4, 3e-3, 4, 16, 3, 0.05, 20_000, 120_000, _D, 64, _OC_C),
+    "overcooked-C": (1e-4, 3e-3, 8, 32, 3, 0.05, 20_000, 100_000, _D, 64, _OC_C),
+    "warehouse-A": (3e-4, 3e-3, 4, 32, 5, 0.05, 10_000, 40_000, 64, 64, _D),
+    "warehouse-B": (3e-4, 3e-3, 4, 16, 5, 0.05, 10_000, 40_000, 64, 64, _D),
+    "warehouse-C": (5e-4, 1e-3, 8, 64, 5, 0.01, 10_000, 80_000, 64, 64, _D),
+    "warehouse-D": (3e-4, 3e-3, 8, 64, 3, 0.01, 10_000, 80_000, 64, 64, _D),
+    "warehouse-E": (3e-4, 3e-3, 8, 64, 3, 0.01, 10_000, 100_000, 64, 64, _D),
+})
+MAC_IAICC = _ac_rows({
+    "boxpushing-6x6": (3e-4, 3e-3, 32, 128, 0, 0.01, 4000, 40_000, _D, _D, _D),
+    "boxpushing-8x8": (3e-4, 3e-3, 32, 64, 0, 0.01, 4000, 40_000, _D, _D, _D),
+    "boxpushing-10x10": (3e-4, 3e-3, 32, 64, 0, 0.01, 6000, 40_000, _D, _D, _D),
+    "boxpushing-12x12": (3e-4, 3e-3, 48, 144, 0, 0.01, 6000, 40_000, _D, _D, _D),
+    "boxpushing-14x14": (5e-4, 3e-3, 48, 48, 0, 0.01, 8000, 40_000, _D, _D, _D),
+    "overcooked-A": (3e-4, 3e-3, 8, 32, 5, 0.05, 20_000, 100_000, _D, 64, _OC_C),
+    "overcooked-B": (3e-4, 3e-3, 4, 32, 5, 0.05, 20_000, 120_000, _D, 64, _OC_C),
+    "overcooked-C": (3e-4, 3e-3, 8, 32, 5, 0.05, 20_000, 100_000, _D, 64, _OC_C),
+    "warehouse-A": (5e-4, 5e-4, 4, 32, 5, 0.05, 10_000, 40_000, 32, 64, _D),
+    "warehouse-B": (5e-4, 5e-4, 4, 32, 5, 0.05, 10_000, 40_000, 32, 64, _D),
+    "warehouse-C": (3e-4, 3e-3, 4, 64, 5, 0.01, 10_000, 80_000, 32, 64, _D),
+    "warehouse-D": (3e-4, 3e-3, 8, 64, 5, 0.01, 10_000, 80_000, 32, 64, _D),
+    "warehouse-E": (3e-4, 3e-3, 8, 64, 5, 0.01, 10_000, 100_000, 32, 64, _D),
+}, **_STATE_BP)
+MAC_NIACC = _ac_rows({
+    "boxpushing-6x6": (3e-4, 3e-3, 32, 128, 0, 0.01, 4000, 40_000, _D, _D, _D),
+    "boxpushing-8x8": (5e-4, 1e-3, 32, 128, 0, 0.01, 4000, 40_000, _D, _D, _D),
+    "boxpushing-10x10": (5e-4, 1e-3, 32, 128, 0, 0.01, 6000, 40_000, _D, _D, _D),
+    "boxpushing-12x12": (5e-4, 5e-4, 48, 48, 0, 0.01, 6000, 40_000, _D, _D, _D),
+    "boxpushing-14x14": (5e-4, 5e-4, 32, 128, 0, 0.01, 8000, 40_000, _D, _D, _D),
+    "overcooked-A": (3e-4, 3e-3, 4, 16, 5, 0.05, 20_000, 100_000, _D, 64, _OC_C),
+    "overcooked-B": (3e-4, 3e-3, 8, 16, 5, 0.05, 20_000, 120_000, _D, 64, _OC_C),
+    "overcooked-C": (3e-4, 3e-3, 8, 16, 5, 0.05, 20_000, 100_000, _D, 64, _OC_C),
+    "warehouse-A": (3e-4, 3e-3, 4, 32, 3, 0.01, 10_000, 40_000, 32, 64, _D),
+    "warehouse-B": (3e-4, 3e-3, 4, 32, 3, 0.01, 10_000, 40_000, 32, 64, _D),
+    "warehouse-C": (3e-4, 3e-3, 16, 64, 5, 0.01, 10_000, 80_000, 32, 64, _D),
+    "warehouse-D": (3e-4, 3e-3, 8, 64, 5, 0.01, 10_000, 80_000, 32, 64, _D),
+    "warehouse-E": (5e-4, 5e-4, 4, 32, 5, 0.01, 10_000, 100_000, 32, 64, _D),
+}, **_STATE_BP)

@@ -15,6 +15,13 @@ Shapes::
     agents = AgentDRQN(mlp, hidden, out)                 # separate parameters per agent (stacked on axis 0):
     q, carry_T = agents.apply(params, x, reset, carry)   # x f32[..., T, n, D], reset bool[..., T], carry [..., n, h]
                                                         # -> q f32[..., T, n, out]
+
+The same net serves the actor-critic baselines (§1.4–1.6): an actor is a DRQN whose ``out`` are logits, a history
+critic a DRQN with ``out = 1``. Their state critics (``*ISC``/``*ASC``) are ``StateCritic``, a recurrence-free MLP::
+
+    fc1(S→m0) –LReLU– fc2(m0→m0) –LReLU– fc3(m1→mid) –LReLU– fc4(mid→m1) –LReLU– fc5(m1→1)
+
+(fc3 reads ``m1`` inputs as the original: only consistent when m0 = m1, which every script has).
 """
 
 from __future__ import annotations
@@ -80,3 +87,36 @@ class AgentDRQN(nn.Module):
         per_agent = nn.vmap(DRQN, variable_axes={"params": 0}, split_rngs={"params": True},
                             in_axes=(-2, None, -2), out_axes=(-2, -2))
         return per_agent(mlp=tuple(self.mlp), hidden=self.hidden, out=self.out, name="agents")(x, reset, carry)
+
+
+class StateCritic(nn.Module):
+    """The originals' state-value MLP (see the module docstring): x f32[..., S] -> f32[..., 1]."""
+
+    mlp: Sequence[int]
+    mid: int
+
+    @nn.compact
+    def __call__(self, x):
+        m0, m1 = self.mlp
+        if m0 != m1:
+            raise ValueError(f"StateCritic: mlp={tuple(self.mlp)!r} must have equal widths (fc3 reads mlp[1] inputs)")
+        dense = lambda width, name, gain=_LEAKY_GAIN: nn.Dense(  # noqa: E731
+            width, name=name, kernel_init=_xavier(gain), bias_init=nn.initializers.zeros_init())
+        y = nn.leaky_relu(dense(m0, "fc1")(x))
+        y = nn.leaky_relu(dense(m0, "fc2")(y))
+        y = nn.leaky_relu(dense(self.mid, "fc3")(y))
+        y = nn.leaky_relu(dense(m1, "fc4")(y))
+        return dense(1, "fc5", 1.0)(y)
+
+
+class AgentStateCritic(nn.Module):
+    """``StateCritic`` per agent with separate parameters: x f32[..., n, S] -> f32[..., n, 1]."""
+
+    mlp: Sequence[int]
+    mid: int
+
+    @nn.compact
+    def __call__(self, x):
+        per_agent = nn.vmap(StateCritic, variable_axes={"params": 0}, split_rngs={"params": True},
+                            in_axes=-2, out_axes=-2)
+        return per_agent(mlp=tuple(self.mlp), mid=self.mid, name="agents")(x)
