@@ -64,6 +64,67 @@ def run_episodes(env, act, init_carry, params, key, epsilon, num_episodes: int):
     return jax.vmap(lambda k: run_episode(env, act, init_carry, params, k, epsilon))(keys)
 
 
+def run_episodes_first_finished(env: MacroEnv, act: Act, init_carry: Callable[[int], Any], params: Any,
+                                key: chex.PRNGKey, epsilon: chex.Array, num_envs: int, num_episodes: int):
+    """The episodes the MacroMARL actor-critic runners collect: the first to *finish* among parallel envs.
+
+    Their runner resets ``num_envs`` envs, steps them in lock-step, restarts an env as soon as its episode ends,
+    and stops at the first step where ``num_episodes`` episodes have finished; episodes still running are
+    dropped, and of the episodes finished by then it keeps the last ``num_episodes`` (in order of finishing, envs
+    in index order within a step: its buffer is a deque of that length). Short episodes are over-represented —
+    on Box Pushing those that push a box to the goal. Training batches (``num_episodes = num_envs``) and
+    evaluations (10 episodes from ``num_envs`` envs) both come out this way.
+
+    Every env runs ``horizon · ⌈num_episodes / num_envs⌉`` steps with auto-reset (each finishes an episode at least
+    every ``horizon`` steps, so enough are always found); the chosen episodes are cut out of the streams.
+    Returns ``(reset_ts, traj)`` shaped as ``run_episodes`` (leaves ``[num_episodes, ...]``, ``[.., H, ...]``).
+    """
+    if num_episodes < 1 or num_envs < 1:
+        raise ValueError(f"first-finished collection needs num_episodes={num_episodes} >= 1 and num_envs={num_envs} >= 1")
+    from envs_jax.wrappers import AutoReset
+
+    auto = AutoReset(env)
+    horizon = env.spec.horizon
+    length = horizon * -(-num_episodes // num_envs)
+
+    def stream(key):  # one env for `length` steps: the step timesteps and the timestep acted from before each
+        key_reset, key_steps = jax.random.split(key)
+        state, first_ts = auto.reset(key_reset)
+
+        def body(carry, key):
+            state, policy_carry = carry
+            k_act, k_step = jax.random.split(key)
+            policy_carry, actions = act(params, policy_carry, state.timestep, k_act, epsilon)
+            state, ts = auto.step(k_step, state, actions)
+            return (state, policy_carry), (ts, state.timestep)
+
+        _, (traj, next_ts) = jax.lax.scan(body, (state, init_carry(env.spec.num_agents)),
+                                          jax.random.split(key_steps, length))
+        return traj, jax.tree_util.tree_map(lambda a, b: jnp.concatenate([a[None], b[:-1]]), first_ts, next_ts)
+
+    traj, acted_from = jax.vmap(stream)(jax.random.split(key, num_envs))  # leaves [N, length, ...]
+    done = jnp.logical_or(traj.terminated, traj.truncated)  # [N, H] an episode ends at (env, step)
+    finished = jnp.cumsum(done.sum(0))  # episodes finished by the end of each step
+    stop = jnp.argmax(finished >= num_episodes)  # the runner's last step
+    # in finishing order (step-major, then env), keep the last `num_episodes` of those ended by `stop`
+    steps = jnp.arange(length)
+    order = jnp.logical_and(done, steps[None, :] <= stop).T.reshape(-1)
+    rank = jnp.cumsum(order) - 1
+    keep = jnp.logical_and(order, rank >= finished[stop] - num_episodes)
+    flat = jnp.nonzero(keep, size=num_episodes)[0]
+    end, env_index = flat // num_envs, flat % num_envs
+    # an episode starts after the previous end of its env's stream (or at step 0)
+    after_end = jnp.where(done, steps[None, :] + 1, 0)
+    start_of = jnp.concatenate([jnp.zeros((num_envs, 1), jnp.int32),
+                                jax.lax.cummax(after_end, axis=1)[:, :-1].astype(jnp.int32)], axis=1)  # [N, H]
+    start = start_of[env_index, end]
+    # H rows from the start; those after the episode's last step (it has done set) are masked by every consumer
+    rows = jnp.minimum(start[:, None] + jnp.arange(horizon)[None, :], length - 1)
+    episodes = jax.tree_util.tree_map(lambda x: x[env_index[:, None], rows], traj)
+    reset_ts = jax.tree_util.tree_map(lambda x: x[env_index, start], acted_from)
+    return reset_ts, episodes
+
+
 def random_policy():
     """``(init_carry, act)`` of the uniform random macro-action policy (no parameters)."""
     from envs_jax.policies import uniform_random_actions

@@ -18,7 +18,8 @@ from typing import Any
 from jaxmac.algos import REGISTRY
 from jaxmac.algos.settings import SCENARIOS
 
-CHOICES: dict[str, tuple[str, ...]] = {"algorithm": tuple(REGISTRY)}
+COLLECTIONS = ("whole", "first_finished")
+CHOICES: dict[str, tuple[str, ...]] = {"algorithm": tuple(REGISTRY), "collection": COLLECTIONS}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -47,6 +48,10 @@ class TrainConfig:
     eval_every_episodes: int = 100  # D15
     eval_episodes: int = 10  # D15
     horizon: int = 0  # env horizon override for smoke runs; 0 = the scenario's own
+    # which episodes a round trains on and an evaluation averages: "whole" = num_envs (eval_episodes) episodes run
+    # to their end; "first_finished" = the MacroMARL actor-critic runners' protocol, the first episodes to finish
+    # among num_envs auto-resetting envs (short episodes over-represented; jaxmac.collect)
+    collection: str = "whole"
     algo: Any = None  # the algorithm's settings block; None = its defaults
 
     def __post_init__(self):
@@ -57,6 +62,8 @@ class TrainConfig:
             object.__setattr__(self, "algo", settings_cls())
         elif not isinstance(self.algo, settings_cls):
             raise ValueError(f"algo={self.algo!r} must be a {settings_cls.__name__} for algorithm {self.algorithm!r}")
+        if self.collection not in COLLECTIONS:
+            raise ValueError(f"collection={self.collection!r} is not valid; choices: {list(COLLECTIONS)}")
         if self.scenario not in SCENARIOS:
             raise ValueError(f"scenario={self.scenario!r} is not valid; choices: {list(SCENARIOS)}")
         positive = ("episodes", "num_envs", "updates_per_round", "batch_size", "buffer_episodes",

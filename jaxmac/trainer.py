@@ -37,7 +37,7 @@ from jaxmac.acting import epsilon_schedule
 from jaxmac.algos.base import Algorithm, Progress, sample_episodes
 from jaxmac.buffer import ring as ring_lib
 from jaxmac.buffer.episode import SlotConfig, empty_slot, write_episode
-from jaxmac.collect import episode_returns, run_episodes
+from jaxmac.collect import episode_returns, run_episodes, run_episodes_first_finished
 from jaxmac.config import TrainConfig
 
 
@@ -111,9 +111,16 @@ def make_train(
             key=key, episodes=zero, env_steps=zero, updates=zero, rounds=zero,
         )
 
+    def episodes_of(act, params, key, epsilon, count: int):
+        """``count`` episodes of ``act``: ``(reset_ts, traj)`` as ``config.collection`` selects them."""
+        if config.collection == "first_finished":
+            return run_episodes_first_finished(env, act, algorithm.init_carry, params, key, epsilon, E, count)
+        reset_ts, traj, _ = run_episodes(env, act, algorithm.init_carry, params, key, epsilon, count)
+        return reset_ts, traj
+
     def evaluate_with(act):
         def evaluate(params, key, episodes: int) -> dict[str, chex.Array]:
-            _, traj, _ = run_episodes(env, act, algorithm.init_carry, params, key, 0.0, episodes)
+            _, traj = episodes_of(act, params, key, 0.0, episodes)
             return episode_returns(traj, gamma)
 
         return evaluate
@@ -153,7 +160,7 @@ def make_train(
         key, k_collect, k_update, k_eval = jax.random.split(state.key, 4)
         eps = epsilon_schedule(config, state.episodes)
         act = lambda p, c, ts, k, e: behaviour(p, c, ts, k, e, state.episodes)  # noqa: E731
-        reset_ts, traj, _ = run_episodes(env, act, algorithm.init_carry, state.params, k_collect, eps, E)
+        reset_ts, traj = episodes_of(act, state.params, k_collect, eps, E)
         slots = jax.vmap(write_episode, in_axes=(None, 0, 0))(slot_config, reset_ts, traj)
         ring = ring_lib.add(state.ring, jax.vmap(store)(slots) if store else slots)
         collected = episode_returns(traj, gamma)

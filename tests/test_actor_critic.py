@@ -5,7 +5,7 @@ critic-then-actor order, one full update of every learner with nets stepped one 
 
 from __future__ import annotations
 
-import itertools
+import dataclasses
 import types
 
 import jax
@@ -392,10 +392,19 @@ def learner_cases():
     return [episode_slot(seed, length, end, p=p, last_done=done, **shape) for seed, length, end, p, done in specs]
 
 
+@pytest.fixture(scope="module")
+def learner_batch(learner_cases):
+    """The episodes' slots and every view an on-policy learner may read (each learner gets the fields its own
+    ``sample`` fills: one compiled view function for the five learners)."""
+    slots = stack([s for s, _ in learner_cases])
+    everything = ac.prepare_on_policy(cert=True, jert=True, cert_states=True, alignment=True)
+    return slots, jax.jit(everything)(slots)
+
+
 _RUNS = {}
 
 
-def run_update(cases, algorithm, critic, n_step):
+def run_update(cases, learner_batch, algorithm, critic, n_step):
     """One update of the learner on the cases (memoised); the actors' loss also reports the advantages it got."""
     name = (algorithm, critic, n_step)
     if name in _RUNS:
@@ -417,7 +426,13 @@ def run_update(cases, algorithm, critic, n_step):
         init = jax.jit(algo.init_params)
         params, target = init(jax.random.key(10)), init(jax.random.key(11))
         opt_state = algo.optimizer.init(params)
-        batch = jax.jit(algo.sample)(None, stack([s for s, _ in cases]), jax.random.key(0))
+        slots, everything = learner_batch
+        own = jax.eval_shape(algo.sample, None, slots, jax.random.key(0))  # what the learner's data source fills
+        fields = {f.name for f in dataclasses.fields(ac.OnPolicyBatch)}
+        batch = everything.replace(**{f: None for f in fields if getattr(own, f) is None})
+        assert jax.tree_util.tree_structure(batch) == jax.tree_util.tree_structure(own)
+        for got, want in zip(jax.tree_util.tree_leaves(batch), jax.tree_util.tree_leaves(own)):
+            assert got.shape == want.shape and got.dtype == want.dtype
         progress = Progress(episodes=jnp.int32(EPISODES), env_steps=jnp.int32(100), updates=jnp.int32(1))
         new, _, metrics = jax.jit(algo.update)(params, target, opt_state, batch, jax.random.key(1), progress)
     _RUNS[name] = (config, env, params, target, new, metrics)
@@ -544,42 +559,53 @@ class Reference:
     # --- the critic step, differentiable (the same values as ``values``, nets over whole sequences) ---------------
 
     def critic_step(self, critic_params, returns):
-        """The critic after one Adam step (the optimiser of the scripts: no clipping) on the reference loss."""
+        """The critic after one Adam step (the scripts' optimiser: no clipping) on the reference loss, whose values
+        are those of ``values`` with each net run over whole (zero-padded, causal) sequences."""
         assert self.config.grad_clip == 0
+        rows, weights, targets = [], [], []
+        counts = {}
+        for e, group, entries in self.groups():
+            counts[group] = counts.get(group, 0) + len(entries)
+        for e, group, entries in self.groups():
+            for k, en in enumerate(entries):
+                if self.history:  # (episode, joint entry where the macro-action started, critic group)
+                    j = joint_start_index(self.joint[e], en["start"]) if self.individual else k
+                    rows.append((e, j, group))
+                else:  # (the state at the start, critic group)
+                    rows.append((self.cases[e][1]["state"][en["start"]], group))
+                weights.append(1.0 / counts[group])
+                targets.append(returns[e, group][k])
+        weights, targets = np.asarray(weights, np.float32), np.asarray(targets, np.float32)
+        group = np.asarray([r[-1] for r in rows])
+        if self.history:
+            inputs = [np.stack(self.joint_inputs(e)) for e in range(len(self.cases))]
+            x = np.zeros((len(inputs), max(len(i) for i in inputs), inputs[0].shape[1]), np.float32)
+            for e, i in enumerate(inputs):
+                x[e, :len(i)] = i
+            episode_idx, entry_idx = np.asarray([r[0] for r in rows]), np.asarray([r[1] for r in rows])
+        else:
+            states = np.stack([r[0] for r in rows])
+        n, hidden = self.n, self.s.critic_rnn_size
 
-        def loss(p):
-            total = 0.0
-            per_group = {}
-            for e, group, entries in self.groups():
-                v = self.differentiable_values(p, e, group, entries)
-                per_group.setdefault(group, []).append((returns[e, group] - v) ** 2)
-            for parts in per_group.values():
-                total = total + jnp.concatenate(parts).mean()
-            return total
+        def values(p):
+            if self.history and self.individual:
+                xs = jnp.broadcast_to(x[:, :, None, :], (x.shape[0], x.shape[1], n, x.shape[2]))
+                v, _ = self.critic.apply(p, xs, jnp.zeros(x.shape[:2], bool), jnp.zeros((x.shape[0], n, hidden)))
+                return v[episode_idx, entry_idx, group, 0]
+            if self.history:
+                v, _ = self.critic.apply(p, x, jnp.zeros(x.shape[:2], bool), jnp.zeros((x.shape[0], hidden)))
+                return v[episode_idx, entry_idx, 0]
+            if self.individual:
+                xs = np.zeros((len(rows), n, states.shape[1]), np.float32)
+                xs[np.arange(len(rows)), group] = states
+                return self.critic.apply(p, xs)[np.arange(len(rows)), group, 0]
+            return self.critic.apply(p, states)[:, 0]
 
-        grads = jax.grad(loss)(critic_params)
+        loss = lambda p: jnp.sum(weights * (targets - values(p)) ** 2)  # noqa: E731
+        value, grads = jax.jit(jax.value_and_grad(loss))(critic_params)
         adam = optax.adam(self.s.critic_lr)
         updates, _ = adam.update(grads, adam.init(critic_params), critic_params)
-        return optax.apply_updates(critic_params, updates), grads
-
-    def differentiable_values(self, p, e, group, entries):
-        info = self.cases[e][1]
-        if self.history:
-            xs = jnp.asarray(np.stack(self.joint_inputs(e)), jnp.float32)  # [T, D]
-            if self.individual:
-                x = jnp.broadcast_to(xs[:, None, :], (xs.shape[0], self.n, xs.shape[1]))
-                v, _ = self.critic.apply(p, x, jnp.zeros((xs.shape[0],), bool),
-                                         jnp.zeros((self.n, self.s.critic_rnn_size)))
-                v = v[:, group, 0]
-                return v[jnp.asarray([joint_start_index(self.joint[e], en["start"]) for en in entries])]
-            v, _ = self.critic.apply(p, xs, jnp.zeros((xs.shape[0],), bool), jnp.zeros((self.s.critic_rnn_size,)))
-            return v[:-1, 0]
-        states = np.stack([info["state"][en["start"]] for en in entries])
-        if not self.individual:
-            return self.critic.apply(p, jnp.asarray(states))[:, 0]
-        x = np.zeros((len(entries), self.n, states.shape[1]), np.float32)
-        x[:, group] = states
-        return self.critic.apply(p, jnp.asarray(x))[:, group, 0]
+        return optax.apply_updates(critic_params, updates), grads, float(value)
 
 
 LEARNERS = [("mac_iaicc", "state", 1), ("mac_iaicc", "history", 3), ("mac_niacc", "state", 3),
@@ -591,8 +617,8 @@ def _leaves(tree):
 
 
 @pytest.mark.parametrize("algorithm,critic,n_step", LEARNERS, ids=[f"{a}-{c or 'history'}-n{n}" for a, c, n in LEARNERS])
-def test_one_update_equals_a_step_by_step_reference(learner_cases, algorithm, critic, n_step):
-    config, env, params, target, new, metrics = run_update(learner_cases, algorithm, critic, n_step)
+def test_one_update_equals_a_step_by_step_reference(learner_cases, learner_batch, algorithm, critic, n_step):
+    config, env, params, target, new, metrics = run_update(learner_cases, learner_batch, algorithm, critic, n_step)
     ref = Reference(config, env, learner_cases)
     assert 0.2 < ref.epsilon < 0.9
     returns = ref.returns(target["critic"])
@@ -601,7 +627,8 @@ def test_one_update_equals_a_step_by_step_reference(learner_cases, algorithm, cr
     np.testing.assert_allclose(float(metrics["critic_loss"]), critic_loss, rtol=2e-5)
     assert abs(ref.critic_loss(params["critic"], ref.returns(params["critic"])) - critic_loss) > 1e-3 * critic_loss
     # the critic took one Adam step on that loss
-    want_critic, grads = ref.critic_step(params["critic"], returns)
+    want_critic, grads, whole_sequences = ref.critic_step(params["critic"], returns)
+    np.testing.assert_allclose(whole_sequences, critic_loss, rtol=2e-5)  # the two forms of the reference agree
     for got, want, old, g in zip(_leaves(new["critic"]), _leaves(want_critic), _leaves(params["critic"]),
                                  _leaves(grads)):
         steady = np.abs(g) > 1e-6  # where |g| ~ Adam's ε the step's size depends on rounding
@@ -630,10 +657,10 @@ def test_one_update_equals_a_step_by_step_reference(learner_cases, algorithm, cr
                                                atol=2e-6)
 
 
-def test_mac_niacc_naive_advantage_is_the_joint_advantage_at_the_termination(learner_cases):
+def test_mac_niacc_naive_advantage_is_the_joint_advantage_at_the_termination(learner_cases, learner_batch):
     """Agent i's k-th macro-action gets the joint advantage of the Mac-JERT entry where it ended (not where it
     started, nor its own macro-action's return)."""
-    config, env, params, target, new, metrics = run_update(learner_cases, "mac_niacc", "history", 2)
+    config, env, params, target, new, metrics = run_update(learner_cases, learner_batch, "mac_niacc", "history", 2)
     ref = Reference(config, env, learner_cases)
     joint_advantage = ref.advantages(new["critic"], ref.returns(target["critic"]))
     seen = np.asarray(metrics["seen_advantage"])

@@ -381,7 +381,9 @@ AVF: dict[str, dict[str, Any]] = {
 # MacroMARL's actor-critic scripts (experiments/*/mac_cac.sh, mac_iaicc.sh, mac_naive_iacc.sh; HYPERPARAMS.md):
 # on-policy, one critic and one actor step per round of n_env = train_freq episodes, hard target copy every
 # c_target_update_freq episodes, no gradient clipping, ε 1 → eps_end over eps_stable_at episodes from the start,
-# 10 evaluation episodes every eval_freq − eval_freq % train_freq episodes. Box Pushing runs the state critics
+# 10 evaluation episodes every eval_freq − eval_freq % train_freq episodes, both training and evaluation episodes
+# being the first to finish among n_env parallel envs (``collection='first_finished'``, jaxmac.collect; 'whole'
+# is the unbiased alternative). Box Pushing runs the state critics
 # (MacIAISC / NaiveMacIASC). Columns: a_lr, c_lr, n_env, c_target_update_freq, n_step_TD, eps_end, eps_stable_at,
 # total_epi, a_rnn, c_rnn, c_mlp ("·" = the default).
 _D = None
@@ -397,6 +399,7 @@ def _ac_rows(rows: dict[str, tuple], **extra) -> dict[str, dict[str, Any]]:
         values.update(grad_clip=0.0, batch_size=e, buffer_episodes=e, updates_per_round=1, eps_start=1.0,
                       eps_decay_start=0, start_train_episodes=0, train_every_steps=0, target_update_steps=0,
                       target_polyak=0.0, eval_every_episodes=100 - 100 % e, eval_episodes=10,
+                      collection="first_finished",
                       n_step=max(1, values["n_step"]), **extra.get(scenario.split("-")[0], {}))
         out[scenario] = values
     return out
