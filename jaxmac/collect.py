@@ -103,26 +103,38 @@ def run_episodes_first_finished(env: MacroEnv, act: Act, init_carry: Callable[[i
         return traj, jax.tree_util.tree_map(lambda a, b: jnp.concatenate([a[None], b[:-1]]), first_ts, next_ts)
 
     traj, acted_from = jax.vmap(stream)(jax.random.split(key, num_envs))  # leaves [N, length, ...]
-    done = jnp.logical_or(traj.terminated, traj.truncated)  # [N, H] an episode ends at (env, step)
-    finished = jnp.cumsum(done.sum(0))  # episodes finished by the end of each step
-    stop = jnp.argmax(finished >= num_episodes)  # the runner's last step
-    # in finishing order (step-major, then env), keep the last `num_episodes` of those ended by `stop`
-    steps = jnp.arange(length)
-    order = jnp.logical_and(done, steps[None, :] <= stop).T.reshape(-1)
-    rank = jnp.cumsum(order) - 1
-    keep = jnp.logical_and(order, rank >= finished[stop] - num_episodes)
-    flat = jnp.nonzero(keep, size=num_episodes)[0]
-    end, env_index = flat // num_envs, flat % num_envs
-    # an episode starts after the previous end of its env's stream (or at step 0)
-    after_end = jnp.where(done, steps[None, :] + 1, 0)
-    start_of = jnp.concatenate([jnp.zeros((num_envs, 1), jnp.int32),
-                                jax.lax.cummax(after_end, axis=1)[:, :-1].astype(jnp.int32)], axis=1)  # [N, H]
-    start = start_of[env_index, end]
+    env_index, start = select_first_finished(jnp.logical_or(traj.terminated, traj.truncated), num_episodes)
     # H rows from the start; those after the episode's last step (it has done set) are masked by every consumer
     rows = jnp.minimum(start[:, None] + jnp.arange(horizon)[None, :], length - 1)
     episodes = jax.tree_util.tree_map(lambda x: x[env_index[:, None], rows], traj)
     reset_ts = jax.tree_util.tree_map(lambda x: x[env_index, start], acted_from)
     return reset_ts, episodes
+
+
+def select_first_finished(done: chex.Array, num_episodes: int) -> tuple[chex.Array, chex.Array]:
+    """Which episodes of lock-stepped auto-resetting env streams the MacroMARL actor-critic runner keeps.
+
+    Args:
+      done: bool[N, L] env i's episode ends at step t (each env restarts right after).
+      num_episodes: how many the runner waits for.
+    Returns:
+      ``(env_index, start)`` i32[num_episodes] each: the stream and the first step of each kept episode, in
+      finishing order. The runner stops after the first step by which ``num_episodes`` episodes have finished
+      and keeps the last ``num_episodes`` of them (in order of finishing, envs by index within a step).
+    """
+    num_envs, length = done.shape
+    finished = jnp.cumsum(done.sum(0))  # episodes finished by the end of each step
+    stop = jnp.argmax(finished >= num_episodes)  # the runner's last step
+    steps = jnp.arange(length)
+    order = jnp.logical_and(done, steps[None, :] <= stop).T.reshape(-1)  # step-major, then env
+    rank = jnp.cumsum(order) - 1
+    keep = jnp.logical_and(order, rank >= finished[stop] - num_episodes)
+    flat = jnp.nonzero(keep, size=num_episodes)[0]
+    end, env_index = flat // num_envs, flat % num_envs
+    # an episode starts after the previous end in its env's stream (or at step 0)
+    after_end = jax.lax.cummax(jnp.where(done, steps[None, :] + 1, 0), axis=1)
+    start_of = jnp.concatenate([jnp.zeros((num_envs, 1), jnp.int32), after_end[:, :-1].astype(jnp.int32)], axis=1)
+    return env_index.astype(jnp.int32), start_of[env_index, end]
 
 
 def random_policy():
