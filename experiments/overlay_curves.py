@@ -4,10 +4,10 @@
         --run "Mac-Cen-DDRQN (jaxmac)=experiments/results/RUN" \\
         --original "MacCen-Q (original)=/path/orig/s0,/path/orig/s1"
 
-``--run LABEL=DIR`` reads a run folder's ``metrics.csv`` (greedy evaluation every 100 episodes);
-``--original LABEL=DIR,DIR`` reads ``test_returns.csv`` of each seed's folder written by
-``shared/reference/originals/run_macromarl.py`` (columns eval, episodes, return — the original's logged greedy
-return, discounted with the training γ). Every curve is smoothed over 10 evaluation points (DECISIONS D15) and
+``--run LABEL=DIR`` reads a run folder's ``metrics.csv`` (its evaluation return: greedy for the value learners,
+sampled from the policy for the actor-critics); ``--original LABEL=DIR,DIR`` reads ``test_returns.csv`` of each
+seed's folder written by ``shared/reference/originals/run_macromarl.py`` (columns eval, episodes, return — the
+original's logged evaluation return, discounted with the training γ). A label ends at its first ``=``. Every curve is smoothed over 10 evaluation points (DECISIONS D15) and
 cut to the evaluations all its seeds reached. Writes PNG and PDF.
 """
 

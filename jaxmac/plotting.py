@@ -46,9 +46,12 @@ def mean_and_standard_error(values: np.ndarray) -> tuple[np.ndarray, np.ndarray 
 
 
 def plot_curves(curves: list[tuple[str, np.ndarray, np.ndarray]], png_path: str, title: str,
-                optimum: float | None = None, window: int = 10, pdf: bool = False) -> None:
+                optimum: float | None = None, window: int = 10, pdf: bool = False,
+                ylabel: str = "evaluation return (discounted)") -> None:
     """Several learning curves on one axis: for each ``(label, episodes [P], values [seeds, P])`` the mean ± s.e.
-    over seeds of the trailing ``window``-point moving average (DECISIONS D15); ``pdf`` also writes a PDF."""
+    over seeds of the trailing ``window``-point moving average (DECISIONS D15); ``pdf`` also writes a PDF. The
+    evaluation return is greedy for the value learners and sampled from the policy for the actor-critics (as
+    their originals evaluate)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -66,7 +69,7 @@ def plot_curves(curves: list[tuple[str, np.ndarray, np.ndarray]], png_path: str,
     if optimum is not None:
         ax.axhline(optimum, color="k", ls="--", lw=1, label=f"optimal ({optimum:.1f})")
     ax.set_xlabel("training episodes")
-    ax.set_ylabel("greedy discounted return")
+    ax.set_ylabel(ylabel)
     ax.set_title(f"{title}\nmean ± s.e. over seeds, {window}-point moving average", fontsize=9)
     ax.grid(alpha=0.3)
     ax.legend(loc="lower right", fontsize=8)
