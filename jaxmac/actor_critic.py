@@ -38,7 +38,7 @@ from jaxmac.decentralised import init_agent_drqn
 from jaxmac.decentralised import sequence_q as decentralised_sequence
 from jaxmac.losses import masked_mean, td_mse
 from jaxmac.networks.agent import MASK_VALUE, masked_argmax
-from jaxmac.networks.drqn import AgentDRQN
+from jaxmac.networks.drqn import DRQN, AgentDRQN, AgentStateCritic, StateCritic
 from jaxmac.targets import gather_q, joint_mask, unravel_joint
 
 
@@ -255,6 +255,22 @@ def joint_history(jert: views.JertView) -> chex.Array:
     """f32[E, H + 1, n·O]: the joint macro-observations of the Mac-JERT entries, then the one after the last entry
     (a recurrent critic's output at k + 1 is its value after entry k)."""
     return joint_obs(windows.append_bootstrap(jert.obs, jert.obs_next, jert.mask.sum(-1), axis=1))
+
+
+def centralised_critic(settings, spec, per_agent: bool):
+    """The critic of the independent-actor learners: ``(net, init(key) -> params)``.
+
+    ``settings.critic == 'history'``: a DRQN with one output over the joint macro-observations (input n·O);
+    'state': ``StateCritic`` over the global state. ``per_agent``: one such critic per agent with its own parameters
+    (Mac-IAICC; inputs with agents on axis -2), else one joint critic (Mac-NIACC)."""
+    n = spec.num_agents
+    lead = (1, n) if per_agent else (1,)
+    if settings.critic == "history":
+        net = (AgentDRQN if per_agent else DRQN)(mlp=settings.critic_mlp_sizes, hidden=settings.critic_rnn_size, out=1)
+        carry = jnp.zeros(lead[1:] + (settings.critic_rnn_size,))
+        return net, lambda key: net.init(key, jnp.zeros(lead + (n * spec.obs_dim,)), jnp.zeros((1,), bool), carry)
+    net = (AgentStateCritic if per_agent else StateCritic)(mlp=settings.critic_mlp_sizes, mid=settings.critic_mid_size)
+    return net, lambda key: net.init(key, jnp.zeros(lead + (spec.state_dim,)))
 
 
 @dataclasses.dataclass(frozen=True)

@@ -25,7 +25,6 @@ from envs_jax.core import MacroEnv
 from jaxmac import actor_critic as ac
 from jaxmac.algos.base import Algorithm, clipped_adam, on_policy_source, per_part_optimizer, store_length
 from jaxmac.config import TrainConfig
-from jaxmac.networks.drqn import AgentDRQN, AgentStateCritic
 
 
 def make_mac_iaicc(config: TrainConfig, env: MacroEnv) -> Algorithm:
@@ -34,19 +33,11 @@ def make_mac_iaicc(config: TrainConfig, env: MacroEnv) -> Algorithm:
     n = spec.num_agents
     actors = ac.AgentActors.make(settings, spec)
     history = settings.critic == "history"
-    if history:
-        critic = AgentDRQN(mlp=settings.critic_mlp_sizes, hidden=settings.critic_rnn_size, out=1)
-    else:
-        critic = AgentStateCritic(mlp=settings.critic_mlp_sizes, mid=settings.critic_mid_size)
+    critic, init_critic = ac.centralised_critic(settings, spec, per_agent=True)
 
     def init_params(key):
         k_actor, k_critic = jax.random.split(key)
-        if history:
-            x = jnp.zeros((1, n, n * spec.obs_dim))
-            critic_params = critic.init(k_critic, x, jnp.zeros((1,), bool), jnp.zeros((n, settings.critic_rnn_size)))
-        else:
-            critic_params = critic.init(k_critic, jnp.zeros((1, n, spec.state_dim)))
-        return {"actor": actors.init(k_actor), "critic": critic_params}
+        return {"actor": actors.init(k_actor), "critic": init_critic(k_critic)}
 
     def joint_values(critic_params, batch):  # every agent's critic over the joint history: f32[E, n, H + 1]
         x = ac.joint_history(batch.jert)  # [E, T, n·O]

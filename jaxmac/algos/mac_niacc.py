@@ -21,7 +21,6 @@ from jaxmac import actor_critic as ac
 from jaxmac import centralised
 from jaxmac.algos.base import Algorithm, clipped_adam, on_policy_source, per_part_optimizer, store_length
 from jaxmac.config import TrainConfig
-from jaxmac.networks.drqn import DRQN, StateCritic
 
 
 def make_mac_niacc(config: TrainConfig, env: MacroEnv) -> Algorithm:
@@ -29,19 +28,11 @@ def make_mac_niacc(config: TrainConfig, env: MacroEnv) -> Algorithm:
     settings, spec = config.algo, env.spec
     actors = ac.AgentActors.make(settings, spec)
     history = settings.critic == "history"
-    if history:
-        critic = DRQN(mlp=settings.critic_mlp_sizes, hidden=settings.critic_rnn_size, out=1)
-    else:
-        critic = StateCritic(mlp=settings.critic_mlp_sizes, mid=settings.critic_mid_size)
+    critic, init_critic = ac.centralised_critic(settings, spec, per_agent=False)
 
     def init_params(key):
         k_actor, k_critic = jax.random.split(key)
-        if history:
-            x = jnp.zeros((1, spec.num_agents * spec.obs_dim))
-            critic_params = critic.init(k_critic, x, jnp.zeros((1,), bool), jnp.zeros((settings.critic_rnn_size,)))
-        else:
-            critic_params = critic.init(k_critic, jnp.zeros((1, spec.state_dim)))
-        return {"actor": actors.init(k_actor), "critic": critic_params}
+        return {"actor": actors.init(k_actor), "critic": init_critic(k_critic)}
 
     def values_and_next(critic_params, jert):  # V at each joint entry and after it: f32[E, 1, H] each
         if history:
