@@ -401,6 +401,11 @@ def _ac_rows(rows: dict[str, tuple], **extra) -> dict[str, dict[str, Any]]:
                       target_polyak=0.0, eval_every_episodes=100 - 100 % e, eval_episodes=10,
                       collection="first_finished",
                       n_step=max(1, values["n_step"]), **extra.get(scenario.split("-")[0], {}))
+        if scenario.startswith("overcooked"):
+            # Overcooked's planner (a custom_vmap) does not compile in a second evaluation under vmap over seeds
+            # (lax.cond with a batched predicate batches its constants); until that is fixed, the sampled
+            # evaluation only
+            values["eval_greedy"] = False
         out[scenario] = values
     return out
 
