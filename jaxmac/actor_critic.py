@@ -145,7 +145,7 @@ def policy_gradient_loss(log_pi_taken: chex.Array, advantage: chex.Array, step: 
 def per_agent_policy_gradient_loss(log_pi_taken, advantage, step, gamma, mask):
     """``policy_gradient_loss`` of each agent's actor (agents on axis 1 of ``[B, n, L]`` arrays), summed: each
     agent normalises by its own entries, as separately optimised actors."""
-    per_agent = jax.vmap(lambda *a: policy_gradient_loss(*a[:3], gamma, a[3]), in_axes=1)(
+    per_agent = jax.vmap(lambda lp, adv, st, m: policy_gradient_loss(lp, adv, st, gamma, m), in_axes=1)(
         log_pi_taken, advantage, step, mask)
     return per_agent.sum()
 

@@ -52,7 +52,8 @@ class TrainConfig:
     # to their end; "first_finished" = the MacroMARL actor-critic runners' protocol, the first episodes to finish
     # among num_envs auto-resetting envs (short episodes over-represented; jaxmac.collect)
     collection: str = "whole"
-    # also evaluate the greedy version of a stochastic evaluation policy (the actor-critics; Algorithm.greedy_act)
+    # also evaluate, every evaluation period, the greedy version of a stochastic evaluation policy (the actor-critics;
+    # Algorithm.greedy_act); the final evaluation in summary.json is greedy either way
     eval_greedy: bool = True
     algo: Any = None  # the algorithm's settings block; None = its defaults
 

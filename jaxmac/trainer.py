@@ -126,12 +126,12 @@ def make_train(
         return evaluate
 
     evaluate = evaluate_with(algorithm.act)
-    evaluate_greedy = evaluate_with(algorithm.greedy_act) if algorithm.greedy_act and config.eval_greedy else None
+    evaluate_greedy = evaluate_with(algorithm.greedy_act) if algorithm.greedy_act else None
 
     def periodic_evaluation(run_eval, params, key) -> dict[str, chex.Array]:
         """Mean evaluation returns when ``run_eval``, NaN otherwise (one row per round)."""
         runs = {"eval": evaluate}
-        if evaluate_greedy:
+        if evaluate_greedy and config.eval_greedy:
             runs["eval_greedy"] = evaluate_greedy
         out = {}
         for name, fn in runs.items():
