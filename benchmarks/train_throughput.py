@@ -3,7 +3,7 @@
     python benchmarks/train_throughput.py [--algorithm tomacvf] --scenario boxpushing-6x6 [--seeds 1 4 8]
                                           [--workers 1 2] [--chunks 3] [--set KEY=VALUE ...]
 
-For every (seeds, workers) pair, each worker process compiles ``vmap(train_chunk)`` over its
+For every (seeds, workers) pair, each worker process compiles ``Trainer.seeds_chunk`` over its
 share of the seeds (compile time reported apart) and then times ``--chunks`` chunks of the
 scenario's configuration of that algorithm (warm-up chunks first fill the ring up to where
 gradient steps run). Printed: training episodes/s and env steps/s per seed and in total, wall and
@@ -49,7 +49,7 @@ def measure(algorithm: str, scenario: str, seeds: int, seed_offset: int, chunks:
     keys = jax.vmap(jax.random.key)(jnp.arange(seed_offset, seed_offset + seeds))
     state = jax.jit(jax.vmap(trainer.init))(keys)
     t0 = time.perf_counter()
-    chunk = jax.jit(jax.vmap(trainer.train_chunk), donate_argnums=0).lower(state).compile()
+    chunk = jax.jit(trainer.seeds_chunk, donate_argnums=0).lower(state).compile()
     compile_s = time.perf_counter() - t0
     needed = config.start_train_episodes or config.batch_size
     warm = max(1, -(-needed // (config.num_envs * trainer.rounds_per_chunk)) + 1)

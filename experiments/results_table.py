@@ -19,11 +19,12 @@ from jaxmac.plotting import mean_and_standard_error
 
 def _changed_settings(run_dir: pathlib.Path, scenario: str) -> str:
     """``key=value`` for every config field that differs from the scenario's defaults of the run's algorithm
-    (episodes aside)."""
+    (episodes and length_buckets aside)."""
     config = TrainConfig.from_dict(json.loads((run_dir / "config.json").read_text())["config"])
     resolved = config.flat_dict()
     defaults = scenario_config(scenario, config.algorithm).flat_dict()
-    changed = [f"{k}={v}" for k, v in resolved.items() if k in defaults and k != "episodes" and defaults[k] != v]
+    ignored = {"episodes", "length_buckets"}  # the budget is its own column; buckets change the speed only
+    changed = [f"{k}={v}" for k, v in resolved.items() if k in defaults and k not in ignored and defaults[k] != v]
     return ", ".join(changed) or "defaults"
 
 

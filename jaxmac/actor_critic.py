@@ -20,6 +20,7 @@ followed by an actor step whose advantages come from the *updated* critic (``cri
 from __future__ import annotations
 
 import dataclasses
+import functools
 from collections.abc import Sequence
 from typing import Any, Callable
 
@@ -31,6 +32,7 @@ import optax
 from flax import struct
 
 from jaxmac.acting import epsilon_schedule
+from jaxmac.buckets import bucket_sizes, run_bucketed
 from jaxmac.buffer import views, windows
 from jaxmac.buffer.episode import EpisodeSlot
 from jaxmac.centralised import joint_obs
@@ -165,7 +167,8 @@ def critic_then_actor_update(critic_targets: CriticTargets, critic_values: Criti
 
     ``critic_targets`` and ``critic_values`` return arrays ``[B, g, L]`` (g critic groups, L entries);
     ``actor_loss(actor_params, batch, advantage, epsilon)`` maps the advantages to its own entries. ε is the
-    exploration rate the episodes were collected with (the schedule at ``progress.episodes``).
+    exploration rate the episodes were collected with (the schedule at ``progress.episodes``). The learners run it
+    through ``length_bucketed`` (on the batch cut to its real entries).
     """
 
     def update(params, target_params, opt_state, batch, key, progress):
@@ -230,6 +233,36 @@ class OnPolicyBatch:
     cert_state_next: chex.Array | None = None
     start_joint: chex.Array | None = None
     end_joint: chex.Array | None = None
+
+    def entries(self) -> chex.Array:
+        """i32[]: the most real entries of any sequence in the batch (Mac-CERT per agent, Mac-JERT)."""
+        counts = [v.mask.sum(-1).max() for v in (self.cert, self.jert) if v is not None]
+        return functools.reduce(jnp.maximum, counts).astype(jnp.int32)
+
+    def prefix(self, size: int) -> "OnPolicyBatch":
+        """The batch cut to its first ``size`` entries per sequence (exact when ``size >= entries()``: masks are
+        prefixes, and joint indices point at real entries)."""
+        cut = lambda axis: lambda x: jax.lax.slice_in_dim(x, 0, size, axis=axis)  # noqa: E731
+        cert_axis = 2  # [E, n, K, ...]
+        tree = jax.tree_util.tree_map
+        return OnPolicyBatch(
+            cert=None if self.cert is None else tree(cut(cert_axis), self.cert),
+            jert=None if self.jert is None else tree(cut(1), self.jert),
+            **{name: None if getattr(self, name) is None else cut(cert_axis)(getattr(self, name))
+               for name in ("cert_state", "cert_state_next", "start_joint", "end_joint")})
+
+
+def length_bucketed(update, buckets: int):
+    """``update`` run on the batch's shortest prefix that holds every real entry (``jaxmac.buckets``): one
+    compiled version per size of ``bucket_sizes(full length, buckets)``; ``buckets = 1`` is the plain update."""
+    bucket_sizes(1, buckets)  # validate now, not at tracing
+
+    def bucketed(params, target_params, opt_state, batch: OnPolicyBatch, key, progress):
+        full = (batch.cert if batch.cert is not None else batch.jert).mask.shape[-1]
+        return run_bucketed(lambda size: update(params, target_params, opt_state, batch.prefix(size), key, progress),
+                            bucket_sizes(full, buckets), batch.entries())
+
+    return bucketed
 
 
 def prepare_on_policy(cert: bool = True, jert: bool = True, cert_states: bool = False, alignment: bool = False):

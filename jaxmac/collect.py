@@ -24,6 +24,7 @@ import jax
 import jax.numpy as jnp
 
 from envs_jax.core import MacroEnv, TimeStep
+from jaxmac.buckets import any_seed
 
 Act = Callable[[Any, Any, TimeStep, chex.PRNGKey, chex.Array], tuple[Any, chex.Array]]
 
@@ -75,8 +76,8 @@ def run_episodes_first_finished(env: MacroEnv, act: Act, init_carry: Callable[[i
     on Box Pushing those that push a box to the goal. Training batches (``num_episodes = num_envs``) and
     evaluations (10 episodes from ``num_envs`` envs) both come out this way.
 
-    Every env runs ``horizon · ⌈num_episodes / num_envs⌉`` steps with auto-reset (each finishes an episode at least
-    every ``horizon`` steps, so enough are always found); the chosen episodes are cut out of the streams.
+    The envs run with auto-reset until ``num_episodes`` have finished (at most ``horizon · ⌈num_episodes / num_envs⌉``
+    steps: each finishes an episode at least every ``horizon`` steps); the chosen episodes are cut out of the streams.
     Returns ``(reset_ts, traj)`` shaped as ``run_episodes`` (leaves ``[num_episodes, ...]``, ``[.., H, ...]``).
     """
     if num_episodes < 1 or num_envs < 1:
@@ -86,23 +87,37 @@ def run_episodes_first_finished(env: MacroEnv, act: Act, init_carry: Callable[[i
     auto = AutoReset(env)
     horizon = env.spec.horizon
     length = horizon * -(-num_episodes // num_envs)
+    reset_keys, stream_keys = jnp.moveaxis(jax.vmap(jax.random.split)(jax.random.split(key, num_envs)), 1, 0)
+    step_keys = jax.vmap(lambda k: jax.random.split(k, length))(stream_keys)  # [N, length]: step t of env i
+    state, first_ts = jax.vmap(auto.reset)(reset_keys)
 
-    def stream(key):  # one env for `length` steps: the step timesteps and the timestep acted from before each
-        key_reset, key_steps = jax.random.split(key)
-        state, first_ts = auto.reset(key_reset)
+    def env_step(state, policy_carry, key):  # one env: the step's timestep and the one acted from next
+        k_act, k_step = jax.random.split(key)
+        policy_carry, actions = act(params, policy_carry, state.timestep, k_act, epsilon)
+        state, ts = auto.step(k_step, state, actions)
+        return state, policy_carry, ts, state.timestep
 
-        def body(carry, key):
-            state, policy_carry = carry
-            k_act, k_step = jax.random.split(key)
-            policy_carry, actions = act(params, policy_carry, state.timestep, k_act, epsilon)
-            state, ts = auto.step(k_step, state, actions)
-            return (state, policy_carry), (ts, state.timestep)
+    # the streams stop once every seed has its episodes (the decision is shared by the seeds, see
+    # jaxmac.buckets, so that the loop carry is not re-selected per seed at every step); steps not run stay zero
+    carry0 = (state, jax.vmap(lambda _: init_carry(env.spec.num_agents))(jnp.arange(num_envs)))
+    shapes = jax.eval_shape(jax.vmap(env_step), *carry0, step_keys[:, 0])
+    traj0, next0 = (jax.tree_util.tree_map(lambda x: jnp.zeros((num_envs, length) + x.shape[1:], x.dtype), x)
+                    for x in shapes[2:])
 
-        _, (traj, next_ts) = jax.lax.scan(body, (state, init_carry(env.spec.num_agents)),
-                                          jax.random.split(key_steps, length))
-        return traj, jax.tree_util.tree_map(lambda a, b: jnp.concatenate([a[None], b[:-1]]), first_ts, next_ts)
+    def more(loop):
+        t, finished = loop[0], loop[1]
+        return jnp.logical_and(t < length, any_seed(finished < num_episodes))
 
-    traj, acted_from = jax.vmap(stream)(jax.random.split(key, num_envs))  # leaves [N, length, ...]
+    def body(loop):
+        t, finished, state, policy_carry, traj, next_ts = loop
+        state, policy_carry, ts, ts_next = jax.vmap(env_step)(state, policy_carry, step_keys[:, t])
+        write = lambda buf, x: buf.at[:, t].set(x)  # noqa: E731
+        traj, next_ts = (jax.tree_util.tree_map(write, b, x) for b, x in ((traj, ts), (next_ts, ts_next)))
+        return t + 1, finished + ts.done.sum().astype(jnp.int32), state, policy_carry, traj, next_ts
+
+    zero = jnp.zeros((), jnp.int32)
+    *_, traj, next_ts = jax.lax.while_loop(more, body, (zero, zero, *carry0, traj0, next0))
+    acted_from = jax.tree_util.tree_map(lambda a, b: jnp.concatenate([a[:, None], b[:, :-1]], 1), first_ts, next_ts)
     env_index, start = select_first_finished(jnp.logical_or(traj.terminated, traj.truncated), num_episodes)
     # H rows from the start; those after the episode's last step (it has done set) are masked by every consumer
     rows = jnp.minimum(start[:, None] + jnp.arange(horizon)[None, :], length - 1)

@@ -55,6 +55,10 @@ class TrainConfig:
     # also evaluate, every evaluation period, the greedy version of a stochastic evaluation policy (the actor-critics;
     # Algorithm.greedy_act); the final evaluation in summary.json is greedy either way
     eval_greedy: bool = True
+    # the update runs on the shortest of this many static sequence lengths (halving from the full one) that holds
+    # the batch's real entries: the same losses, less padding (jaxmac.buckets; the on-policy learners); 1 = always
+    # the full length, one compilation
+    length_buckets: int = 1
     algo: Any = None  # the algorithm's settings block; None = its defaults
 
     def __post_init__(self):
@@ -78,6 +82,12 @@ class TrainConfig:
                      "eps_decay_start", "horizon"):
             if getattr(self, name) < 0:
                 raise ValueError(f"{name}={getattr(self, name)!r} must be >= 0")
+        if not isinstance(self.length_buckets, int) or isinstance(self.length_buckets, bool) or self.length_buckets < 1:
+            raise ValueError(f"length_buckets={self.length_buckets!r} must be a positive integer (1 = the full length)")
+        if self.length_buckets != 1 and not REGISTRY[self.algorithm].length_buckets:
+            raise ValueError(f"length_buckets={self.length_buckets} is not supported by algorithm={self.algorithm!r} "
+                             f"(it always runs the full length: use 1); algorithms with length buckets: "
+                             f"{[name for name, entry in REGISTRY.items() if entry.length_buckets]}")
         if not 0.0 < self.lr < 1.0:
             raise ValueError(f"lr={self.lr!r} must be in (0, 1)")
         if not 0.0 <= self.eps_end <= self.eps_start <= 1.0:

@@ -25,6 +25,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxmac.buckets import SEED_AXIS
 from jaxmac.config import TrainConfig
 
 # The first columns of metrics.csv; every other metric the trainer and the algorithm report follows, by name.
@@ -253,7 +254,7 @@ def _loop(trainer, state, chunk, out_dir, meta, checkpoint_seconds, progress, st
 
     config = trainer.config
     seed_ids = list(range(meta["seed_offset"], meta["seed_offset"] + meta["seeds"]))
-    train_chunk = jax.jit(jax.vmap(trainer.train_chunk), donate_argnums=0)
+    train_chunk = jax.jit(trainer.seeds_chunk, donate_argnums=0)
     mngr = _checkpointer(out_dir)
     metrics_path = os.path.join(out_dir, "metrics.csv")
     total = trainer.total_chunks
@@ -311,7 +312,8 @@ def _finish(trainer, state, out_dir, meta, wall_seconds):
     keys = jax.vmap(lambda s: jax.random.fold_in(jax.random.key(10_007), s))(
         jnp.arange(meta["seed_offset"], meta["seed_offset"] + meta["seeds"]))
     def final_returns(evaluate):
-        stats = jax.jit(jax.vmap(lambda p, k: evaluate(p, k, config.eval_episodes)))(state.params, keys)
+        stats = jax.jit(jax.vmap(lambda p, k: evaluate(p, k, config.eval_episodes), axis_name=SEED_AXIS))(
+            state.params, keys)
         return np.asarray(stats["disc_return"]).mean(-1), np.asarray(stats["return"]).mean(-1)
 
     # greedy: the value learners' evaluation policy, the actor-critics' greedy_act (their sampled one is kept too)

@@ -14,7 +14,9 @@ steps collected) on batches from the algorithm's data source, once the ring hold
 else a hard copy every ``target_update_episodes`` episodes or ``target_update_steps`` env steps) → a greedy
 evaluation every ``eval_every_episodes`` (DECISIONS D13, D15). Metrics are reduced inside the scan, one
 row per round: the trainer's counters and returns plus every metric the algorithm's update reports.
-``jax.vmap(train_chunk)`` runs several seeds at once.
+``Trainer.seeds_chunk`` (``jax.vmap(train_chunk, axis_name=SEED_AXIS)``) runs several seeds at once; with the
+axis named, the decisions every seed shares (evaluate this round? train yet? which length bucket?) stay unbatched
+and each ``lax.cond`` runs one branch, where a batched predicate would run both.
 
 An *algorithm* (``jaxmac.algos.base.Algorithm``) supplies networks, acting, loss, optimiser, update and
 data source; the rollout, ring, schedule, evaluation and target updates here are shared by all of them.
@@ -35,6 +37,7 @@ from flax import struct
 from envs_jax.core import MacroEnv
 from jaxmac.acting import epsilon_schedule
 from jaxmac.algos.base import Algorithm, Progress, sample_episodes
+from jaxmac.buckets import SEED_AXIS, any_seed
 from jaxmac.buffer import ring as ring_lib
 from jaxmac.buffer.episode import SlotConfig, empty_slot, write_episode
 from jaxmac.collect import episode_returns, run_episodes, run_episodes_first_finished
@@ -70,6 +73,10 @@ class Trainer:
     @property
     def total_chunks(self) -> int:
         return math.ceil(self.total_rounds / self.rounds_per_chunk)
+
+    def seeds_chunk(self, state: TrainState):
+        """``train_chunk`` of several seeds (leaves of ``state`` ``[seeds, ...]``), vmapped over ``SEED_AXIS``."""
+        return jax.vmap(self.train_chunk, axis_name=SEED_AXIS)(state)
 
 
 def make_train(
@@ -197,6 +204,8 @@ def make_train(
             return carry, jax.tree_util.tree_map(lambda s: jnp.full(s.shape, jnp.nan, s.dtype), shapes)
 
         ready = jnp.logical_and(ring.count >= min_episodes, n_updates > 0)
+        if not config.train_every_steps:  # the same for every seed (all collect E episodes a round): unbatched
+            ready = any_seed(ready)
         if config.train_every_steps:
             # a loop of zero iterations before training starts, not a cond: under vmap over seeds a cond runs
             # both branches, and the gradient steps of not-ready seeds would be computed and thrown away
@@ -212,6 +221,7 @@ def make_train(
             copy_target = after // period > before // period
             target_params = jax.tree_util.tree_map(lambda p, t: jnp.where(copy_target, p, t), params, target_params)
         run_eval = episodes // config.eval_every_episodes > state.episodes // config.eval_every_episodes
+        run_eval = any_seed(run_eval)  # the same for every seed: unbatched
         updates = state.updates + jnp.where(ready, n_updates, 0)
         metrics = {
             "episodes": episodes,

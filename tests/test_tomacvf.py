@@ -48,7 +48,7 @@ def trainer():
 def vmapped_run(trainer):
     """Two seeds vmapped, two chunks: (final state, metrics [seeds, rounds])."""
     init = jax.jit(jax.vmap(trainer.init))
-    chunk = jax.jit(jax.vmap(trainer.train_chunk))
+    chunk = jax.jit(trainer.seeds_chunk)
     state = init(jnp.stack([jax.random.key(0), jax.random.key(1)]))
     rows = []
     for _ in range(trainer.total_chunks):
@@ -78,7 +78,7 @@ def test_vmap_over_seeds_equals_single_seed_runs_and_is_deterministic(trainer, v
 def test_same_seed_gives_identical_metrics(trainer, vmapped_run):
     _, first = vmapped_run
     init = jax.jit(jax.vmap(trainer.init))
-    chunk = jax.jit(jax.vmap(trainer.train_chunk))
+    chunk = jax.jit(trainer.seeds_chunk)
     state = init(jnp.stack([jax.random.key(0), jax.random.key(1)]))
     state, m = chunk(state)
     for k, v in jax.device_get(m).items():

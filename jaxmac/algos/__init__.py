@@ -21,6 +21,7 @@ class Entry:
     scenario_values: dict[str, dict[str, Any]]  # original-script values per scenario (shared and block fields)
     tiny_values: dict[str, Any]  # block values for tests and smoke runs
     summary: str
+    length_buckets: bool = False  # its update reads TrainConfig.length_buckets (runs on the batch's real length)
 
 
 _TINY_DRQN = dict(mlp_sizes=(8, 8), rnn_size=8, start_train_episodes=0, eps_decay_start=0, train_every_steps=20,
@@ -28,7 +29,7 @@ _TINY_DRQN = dict(mlp_sizes=(8, 8), rnn_size=8, start_train_episodes=0, eps_deca
 
 # on-policy: the batch is the round's episodes, the ring keeps only their lengths
 _TINY_AC = dict(actor_mlp_sizes=(8, 8), actor_rnn_size=8, critic_mlp_sizes=(8, 8), critic_rnn_size=8, critic_mid_size=8,
-                batch_size=8, buffer_episodes=8, grad_clip=0.0)
+                batch_size=8, buffer_episodes=8, grad_clip=0.0, length_buckets=1)  # one compilation per test
 
 REGISTRY: dict[str, Entry] = {
     "tomacvf": Entry(
@@ -50,14 +51,17 @@ REGISTRY: dict[str, Entry] = {
         "AVF: per-agent recurrent Q on Mac-JERT mixed by VDN/QMIX/QPLEX, conditional double-Q, Polyak target"),
     "mac_iaicc": Entry(
         s.MacIAICCSettings, "jaxmac.algos.mac_iaicc:make_mac_iaicc", s.MAC_IAICC, _TINY_AC,
-        "Mac-IAICC: per-agent actors, individual centralised critics V_i (history or state), on-policy"),
+        "Mac-IAICC: per-agent actors, individual centralised critics V_i (history or state), on-policy",
+        length_buckets=True),
     "mac_niacc": Entry(
         s.MacNIACCSettings, "jaxmac.algos.mac_niacc:make_mac_niacc", s.MAC_NIACC, _TINY_AC,
-        "Mac-NIACC: per-agent actors, one joint critic (history or state), the joint advantage, on-policy"),
+        "Mac-NIACC: per-agent actors, one joint critic (history or state), the joint advantage, on-policy",
+        length_buckets=True),
     "mac_cac": Entry(
         s.MacCACSettings, "jaxmac.algos.mac_cac:make_mac_cac", s.MAC_CAC,
         {k: v for k, v in _TINY_AC.items() if k != "critic_mid_size"},
-        "Mac-CAC: a joint actor over joint macro-actions and a joint history critic, on-policy"),
+        "Mac-CAC: a joint actor over joint macro-actions and a joint history critic, on-policy",
+        length_buckets=True),
 }
 
 

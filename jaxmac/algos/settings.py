@@ -399,13 +399,8 @@ def _ac_rows(rows: dict[str, tuple], **extra) -> dict[str, dict[str, Any]]:
         values.update(grad_clip=0.0, batch_size=e, buffer_episodes=e, updates_per_round=1, eps_start=1.0,
                       eps_decay_start=0, start_train_episodes=0, train_every_steps=0, target_update_steps=0,
                       target_polyak=0.0, eval_every_episodes=100 - 100 % e, eval_episodes=10,
-                      collection="first_finished",
+                      collection="first_finished", length_buckets=4,
                       n_step=max(1, values["n_step"]), **extra.get(scenario.split("-")[0], {}))
-        if scenario.startswith("overcooked"):
-            # Overcooked's planner (a custom_vmap) does not compile in a second evaluation under vmap over seeds
-            # (lax.cond with a batched predicate batches its constants); until that is fixed, the sampled
-            # evaluation only
-            values["eval_greedy"] = False
         out[scenario] = values
     return out
 

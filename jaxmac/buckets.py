@@ -1,0 +1,56 @@
+"""Length buckets: run a computation on the shortest static prefix that holds every real entry.
+
+Fixed shapes make an update pay for the horizon ``H`` whatever the episodes' real lengths (a Box Pushing
+batch of 32 episodes fills at most ~20 of the 100 Mac-CERT entries). Masks are prefixes, so cutting every
+sequence to a static length ``L`` ≥ the longest real one changes nothing but the cost. ``run_bucketed``
+compiles the computation once per size and picks the smallest size that fits at run time (``lax.switch``).
+
+Under ``jax.vmap`` a switch on a batched index would run every branch; the trainer therefore vmaps its seeds
+with ``axis_name=SEED_AXIS`` (``Trainer.seeds_chunk``) and the index is the maximum over seeds, which is not
+batched: all seeds of a program take the branch the longest of them needs.
+"""
+
+from __future__ import annotations
+
+import functools
+from typing import Callable
+
+import chex
+import jax
+import jax.numpy as jnp
+
+SEED_AXIS = "seeds"  # the name of the vmapped seed axis of a training program
+
+
+def across_seeds(reduce: Callable, x: chex.Array) -> chex.Array:
+    """``reduce`` (``jax.lax.pmax``, ``pmin``, ...) of ``x`` over the seeds vmapped with ``SEED_AXIS``; ``x``
+    itself outside such a vmap (one seed, or seeds vmapped without the name: then the result stays batched)."""
+    try:
+        return reduce(x, SEED_AXIS)
+    except NameError:  # unbound axis name: not under the seeds' vmap
+        return x
+
+
+def any_seed(flag: chex.Array) -> chex.Array:
+    """bool[]: ``flag`` of any seed (``across_seeds`` for a boolean); for decisions every seed shares."""
+    return across_seeds(jax.lax.pmax, jnp.asarray(flag, jnp.int32)) > 0
+
+
+def bucket_sizes(full: int, count: int) -> tuple[int, ...]:
+    """``count`` static lengths, halving from ``full``: ``bucket_sizes(100, 3) == (25, 50, 100)``; 1 = ``(full,)``."""
+    if not isinstance(count, int) or isinstance(count, bool) or count < 1:
+        raise ValueError(f"length_buckets={count!r} must be a positive integer (1 = always the full length)")
+    sizes = {max(1, -(-full // 2**k)) for k in range(count)}
+    return tuple(sorted(sizes))
+
+
+def run_bucketed(fn: Callable, sizes: tuple[int, ...], need: chex.Array, *args):
+    """``fn(size, *args)`` for the smallest ``size`` in ``sizes`` that is ≥ ``need`` (the largest over seeds).
+
+    ``sizes`` ascending, its last the full length (``need`` never exceeds it). With one size this is a plain call.
+    """
+    if len(sizes) == 1:
+        return fn(sizes[0], *args)
+    need = across_seeds(jax.lax.pmax, jnp.asarray(need, jnp.int32))
+    index = jnp.minimum(jnp.searchsorted(jnp.asarray(sizes, jnp.int32), need), len(sizes) - 1)
+    return jax.lax.switch(index, [functools.partial(fn, s) for s in sizes], *args)
