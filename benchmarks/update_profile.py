@@ -1,0 +1,84 @@
+"""Where a round of an on-policy learner spends its time: collection, and the update at every length bucket.
+
+    python benchmarks/update_profile.py [--algorithm mac_iaicc] [--scenario overcooked-A] [--epsilon 1.0]
+                                        [--repeats 5] [--set KEY=VALUE ...]
+
+One seed, ``jax.jit`` of each piece, the scenario's configuration: a round's first-finished collection of
+``num_envs`` episodes with freshly initialised parameters (ε as given), then ``algorithm.update`` on those episodes
+cut to each static length of ``bucket_sizes(H, length_buckets)`` that holds them (the trainer picks the smallest),
+and the full length. Printed: milliseconds per call (median of ``--repeats``) and the batch's real entries; with
+other jobs on the machine read the ratios between the lines, not the milliseconds.
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import time
+
+
+def main(argv=None) -> None:
+    from jaxmac.algos import REGISTRY
+
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    on_policy = [name for name, entry in REGISTRY.items() if entry.length_buckets]
+    p.add_argument("--algorithm", default="mac_iaicc", choices=on_policy)
+    p.add_argument("--scenario", default="overcooked-A")
+    p.add_argument("--epsilon", type=float, default=1.0, help="exploration rate of the profiled collection")
+    p.add_argument("--repeats", type=int, default=5)
+    p.add_argument("--set", dest="assignments", action="append", default=[], metavar="KEY=VALUE")
+    args = p.parse_args(argv)
+
+    import jax
+    import jax.numpy as jnp
+
+    from jaxmac.algos import make_algorithm
+    from jaxmac.algos.base import Progress
+    from jaxmac.buckets import bucket_sizes
+    from jaxmac.buffer.episode import write_episode
+    from jaxmac.collect import run_episodes_first_finished
+    from jaxmac.config import make_env, scenario_config
+    from jaxmac.trainer import make_train
+
+    config = scenario_config(args.scenario, args.algorithm).override_strings(args.assignments)
+    env = make_env(config)
+    algorithm = make_algorithm(config, env)
+    trainer = make_train(config, env, algorithm)
+    state = jax.jit(trainer.init)(jax.random.key(0))
+    E = config.num_envs
+
+    def timed(fn, *xs):
+        out = jax.block_until_ready(fn(*xs))  # compile
+        times = []
+        for _ in range(args.repeats):
+            t0 = time.perf_counter()
+            jax.block_until_ready(fn(*xs))
+            times.append(time.perf_counter() - t0)
+        return 1000 * statistics.median(times), out
+
+    @jax.jit
+    def collect(params, key):
+        reset_ts, traj = run_episodes_first_finished(env, algorithm.act, algorithm.init_carry, params, key,
+                                                     args.epsilon, E, E)
+        return jax.vmap(write_episode, in_axes=(None, 0, 0))(trainer.slot_config, reset_ts, traj)
+
+    ms, slots = timed(collect, state.params, jax.random.key(1))
+    batch = jax.jit(lambda s: algorithm.sample(None, s, None))(slots)
+    real = int(batch.entries())
+    full = (batch.cert if batch.cert is not None else batch.jert).mask.shape[-1]
+    print(f"{args.scenario}: {args.algorithm}, {E} episodes per round (mean length {float(slots.length.mean()):.1f} "
+          f"of {env.spec.horizon}); longest real sequence {real} of {full} entries")
+    print(f"  collection of one round: {ms:8.1f} ms")
+    zero = jnp.zeros((), jnp.int32)
+    progress = Progress(episodes=zero, env_steps=zero, updates=zero)
+    plain = config.override(length_buckets=1)
+    update = jax.jit(make_algorithm(plain, env).update)
+    for size in [s for s in bucket_sizes(full, config.length_buckets) if s >= real] or [full]:
+        ms, _ = timed(update, state.params, state.target_params, state.opt_state, batch.prefix(size),
+                      jax.random.key(2), progress)
+        label = "full length" if size == full else f"bucket of {size}"
+        print(f"  update on {label:>15}: {ms:8.1f} ms")
+
+
+if __name__ == "__main__":
+    main()
