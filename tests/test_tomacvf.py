@@ -110,7 +110,8 @@ def test_loss_decreases_on_a_fixed_batch(trainer, vmapped_run):
 
 @pytest.mark.parametrize(
     "overrides",
-    [dict(buffer="mac_jert"), dict(mixer_params="state"), dict(buffer="mac_jert", mixer_params="state"),
+    [dict(buffer="mac_jert", obs_mode="macro"), dict(mixer_params="state"),
+     dict(buffer="mac_jert", obs_mode="macro", mixer_params="state"),
      dict(mixer="vdn"), dict(obs_mode="macro"), dict(n_step=3, use_time_pe=False, attn_window=5)],
     ids=["wo_sjert", "wo_atpg", "wo_both", "vdn", "obs_macro", "nstep_nope_window"],
 )
@@ -138,13 +139,22 @@ def test_ablation_switches_give_a_learning_signal(overrides, vmapped_run):
 
 
 def test_mac_jert_ablation_trains_end_to_end():
-    config = TINY.override(episodes=16, buffer="mac_jert")
+    config = TINY.override(episodes=16, buffer="mac_jert", obs_mode="macro")
     t = build(config, rounds_per_chunk=2)
     init = jax.jit(t.init)
     state, metrics = jax.jit(t.train_chunk)(init(jax.random.key(0)))
     assert np.isfinite(np.asarray(metrics["loss"])[-1])
     moved = jax.tree_util.tree_map(lambda a, b: bool(jnp.any(a != b)), state.params, init(jax.random.key(0)).params)
     assert any(jax.tree_util.tree_leaves(moved)), "no parameter changed"
+
+
+def test_mac_jert_with_real_observations_is_refused_naming_both_values():
+    with pytest.raises(ValueError) as err:
+        TINY.override(buffer="mac_jert")  # obs_mode defaults to "real"
+    assert "buffer='mac_jert'" in str(err.value) and "obs_mode='real'" in str(err.value)
+    with pytest.raises(ValueError, match="obs_mode='real'"):
+        TINY.override_strings(["buffer=mac_jert", "obs_mode=real"])
+    assert TINY.override_strings(["buffer=mac_jert", "obs_mode=macro"]).algo.obs_mode == "macro"
 
 
 def _read(path):

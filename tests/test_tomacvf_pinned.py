@@ -22,7 +22,7 @@ from jaxmac.trainer import make_train
 PINNED = pathlib.Path(__file__).parent / "data" / "tomacvf_pinned.json"
 CASES = {
     "mac_sjert": dict(updates_per_round=2, overestimate_weight=0.5),
-    "mac_jert": dict(buffer="mac_jert"),
+    "mac_jert": dict(buffer="mac_jert", obs_mode="macro"),
 }
 
 

@@ -71,6 +71,10 @@ class ToMacVFSettings:
         _check_choice(owner, "mixer", self.mixer, ("qmix", "vdn"))
         _check_choice(owner, "mixer_params", self.mixer_params, ("atpg", "state"))
         _check_choice(owner, "obs_mode", self.obs_mode, ("real", "macro"))
+        if self.buffer == "mac_jert" and self.obs_mode != "macro":
+            raise ValueError(f"{owner}: buffer='mac_jert' keeps only the decision points' frozen macro-observations, so "
+                             f"obs_mode={self.obs_mode!r} cannot be served; set obs_mode='macro' with it (or keep "
+                             f"buffer='mac_sjert')")
         _check_positive(owner, self, ("rnn_size", "fc_size", "n_step", "mixer_embed", "attn_dim", "time_pe_dim",
                                       "progress_pe_dim"))
         for name in ("time_pe_dim", "progress_pe_dim"):

@@ -70,7 +70,7 @@ def make_tomacvf(config: TrainConfig, env: MacroEnv) -> Algorithm:
     net = TemporalAgentNet(agent_cfg)
     mixer = Mixer(mixer_cfg)
     settings = config.algo
-    obs_mode = settings.obs_mode if settings.buffer == "mac_sjert" else "macro"
+    obs_mode = settings.obs_mode  # "macro" whenever buffer="mac_jert" (the settings refuse anything else)
     squeezed = settings.buffer == "mac_jert"
     lam = settings.macro_loss_weight
     weight = settings.overestimate_weight
