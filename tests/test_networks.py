@@ -146,11 +146,12 @@ def test_agent_shapes_masks_and_per_agent_params(agent):
         assert leaf.shape[0] == N
         if leaf.std() > 0:  # biases start at zero
             assert not np.allclose(leaf[0], leaf[1]) and not np.allclose(leaf[1], leaf[2])
-    # same input stream for every agent -> different Q per agent (separate parameters)
-    same = jax.tree_util.tree_map(lambda x: jnp.repeat(x[..., :1], N, axis=-1) if x.ndim == 3 else x, inputs)
-    same = same.replace(obs=jnp.repeat(inputs.obs[..., :1, :], N, axis=-2))
-    q_same = seq(params, same, initial_carry(cfg, (B,)), tau)[0]
-    assert not np.allclose(q_same[..., 0, :], q_same[..., 1, :])
+    # agent i's Q reads agent i's parameter slice only: perturbing agent 1's slice moves agent 1's Q alone
+    # (inputs carry a one-hot agent id, so "Q differs per agent" alone would hold with shared parameters too)
+    moved = jax.tree_util.tree_map(lambda x: x.at[1].add(0.3), params)
+    q_moved = seq(moved, inputs, initial_carry(cfg, (B,)), tau)[0]
+    np.testing.assert_allclose(q_moved[..., [0, 2], :], q[..., [0, 2], :], rtol=1e-6, atol=1e-6)
+    assert not np.allclose(q_moved[..., 1, :], q[..., 1, :])
     # action masks
     rng = np.random.default_rng(0)
     avail = rng.random(q.shape) < 0.5
