@@ -167,8 +167,8 @@ def critic_then_actor_update(critic_targets: CriticTargets, critic_values: Criti
 
     ``critic_targets`` and ``critic_values`` return arrays ``[B, g, L]`` (g critic groups, L entries);
     ``actor_loss(actor_params, batch, advantage, epsilon)`` maps the advantages to its own entries. ε is the
-    exploration rate the episodes were collected with (the schedule at ``progress.episodes``). The learners run it
-    through ``length_bucketed`` (on the batch cut to its real entries).
+    exploration rate the episodes were collected with (the schedule at ``progress.episodes``). The step runs on the
+    batch cut to its real entries, in ``config.length_buckets`` static sizes (``length_bucketed``).
     """
 
     def update(params, target_params, opt_state, batch, key, progress):
@@ -198,7 +198,7 @@ def critic_then_actor_update(critic_targets: CriticTargets, critic_values: Criti
         }
         return {"actor": actor, "critic": critic}, {"actor": a_state, "critic": c_state}, metrics
 
-    return update
+    return length_bucketed(update, config.length_buckets)
 
 
 def check_on_policy(config, algorithm: str) -> None:
@@ -256,6 +256,8 @@ def length_bucketed(update, buckets: int):
     """``update`` run on the batch's shortest prefix that holds every real entry (``jaxmac.buckets``): one
     compiled version per size of ``bucket_sizes(full length, buckets)``; ``buckets = 1`` is the plain update."""
     bucket_sizes(1, buckets)  # validate now, not at tracing
+    if buckets == 1:
+        return update
 
     def bucketed(params, target_params, opt_state, batch: OnPolicyBatch, key, progress):
         full = (batch.cert if batch.cert is not None else batch.jert).mask.shape[-1]

@@ -204,13 +204,12 @@ def make_train(
             return carry, jax.tree_util.tree_map(lambda s: jnp.full(s.shape, jnp.nan, s.dtype), shapes)
 
         ready = jnp.logical_and(ring.count >= min_episodes, n_updates > 0)
-        if not config.train_every_steps:  # the same for every seed (all collect E episodes a round): unbatched
-            ready = any_seed(ready)
         if config.train_every_steps:
-            # a loop of zero iterations before training starts, not a cond: under vmap over seeds a cond runs
-            # both branches, and the gradient steps of not-ready seeds would be computed and thrown away
+            # a loop of zero iterations before training starts, not a cond: the update count differs per seed,
+            # and under vmap a cond with a batched predicate would run the gradient steps of not-ready seeds too
             carry, loss_metrics = counted_updates(carry, jnp.where(ready, n_updates, 0))
         else:
+            ready = any_seed(ready)  # the same for every seed (all collect E episodes a round): unbatched
             carry, loss_metrics = jax.lax.cond(ready, fixed_updates, skip_updates, carry)
         params, target_params, opt_state = carry[:3]
         if not polyak:

@@ -16,7 +16,7 @@ import pytest
 from _ac_references import (agent_sequence, allowed_joint, joint_index, joint_start_index, jitted_apply,
                             log_pi_epsilon, original_n_step_returns, restricted, shared_input_sequence,
                             single_sequence, squeezed_entries)
-from _buffer_fixtures import config_for, synthetic_rollout
+from _learner_helpers import GAMMA, assert_frequencies, episode_slot, random_params
 from _value_references import stack
 
 from envs_jax.core import TimeStep
@@ -24,32 +24,10 @@ from jaxmac import actor_critic as ac
 from jaxmac.algos import make_algorithm
 from jaxmac.algos.base import Progress, per_part_optimizer
 from jaxmac.algos.settings import SCENARIOS
-from jaxmac.buffer import episode
 from jaxmac.config import make_env, scenario_config
 from jaxmac.decentralised import init_agent_drqn
 from jaxmac.networks.agent import MASK_VALUE
 from jaxmac.networks.drqn import DRQN, AgentDRQN, AgentStateCritic, StateCritic
-
-H, GAMMA = 20, 0.9
-
-_write = jax.jit(episode.write_episode, static_argnums=0)
-
-
-def episode_slot(seed, length, end, n=2, p=0.35, last_done=None, h=H, obs_dim=3, num_actions=4, state_dim=2,
-                 gamma=GAMMA):
-    """A synthetic episode slot and its raw per-step arrays; ``last_done`` forces the termination pattern of the
-    episode's last step."""
-    rng = np.random.default_rng(seed)
-    mac_done = rng.random((h, n)) < p
-    if last_done is not None:
-        mac_done[length - 1] = last_done
-    reward = rng.normal(size=h).astype(np.float32)
-    reset_ts, traj, info = synthetic_rollout(mac_done, reward, length, end=end, obs_dim=obs_dim,
-                                             num_actions=num_actions, state_dim=state_dim, seed=seed)
-    cfg = config_for(h, n, gamma, obs_dim=obs_dim, num_actions=num_actions, state_dim=state_dim)
-    info.update(mac_done=mac_done, reward=reward, length=length, end=end, n=n)
-    return _write(cfg, reset_ts, traj), info
-
 
 def entries_of(info, gamma, agent=None):
     return squeezed_entries(info["mac_done"], info["reward"], info["t_m"], info["length"], info["end"], gamma, agent)
@@ -192,15 +170,6 @@ def test_epsilon_mixed_log_probs_equal_numpy(epsilon):
 # --- 4. sampling -----------------------------------------------------------------------------------------------
 
 
-def random_params(init, seed, scale=0.4):
-    """Parameters of ``init``'s structure drawn from N(0, scale²) (no initialiser compiled: only shapes traced)."""
-    shapes = jax.eval_shape(init, jax.random.key(0))
-    leaves, tree = jax.tree_util.tree_flatten(shapes)
-    rng = np.random.default_rng(seed)
-    return jax.tree_util.tree_unflatten(
-        tree, [jnp.asarray(scale * rng.normal(size=x.shape), x.dtype) for x in leaves])
-
-
 def sharpen(params, factor):
     """Scale the output layer so that the logits spread over several units (sampling tests then discriminate)."""
     return jax.tree_util.tree_map_with_path(
@@ -219,17 +188,6 @@ def time_step(rng, counts, width, obs_dim, free, t):
                     avail_actions=jnp.asarray(avail), mac=jnp.asarray(running), t_m=jnp.zeros(n, jnp.int32),
                     state=jnp.zeros(2), reward=jnp.float32(0), terminated=jnp.bool_(False),
                     truncated=jnp.bool_(False), t=jnp.int32(t))
-
-
-def assert_frequencies(samples, probs, label):
-    """Empirical frequencies of ``samples`` (ints) within 5 standard errors of ``probs`` in every cell, and no
-    sample outside the support."""
-    count = len(samples)
-    freq = np.bincount(samples, minlength=len(probs)) / count
-    assert (freq[probs == 0] == 0).all(), label
-    tol = 5 * np.sqrt(probs * (1 - probs) / count) + 2.0 / count
-    bad = np.nonzero(np.abs(freq - probs) > tol)[0]
-    assert not len(bad), (label, bad, freq[bad], probs[bad])
 
 
 SAMPLES, OBS = 20_000, 3
@@ -361,7 +319,7 @@ def test_the_actor_sees_the_advantage_of_the_updated_critic():
     lr_actor, lr_critic = 0.05, 0.1
     optimizers = {"actor": optax.sgd(lr_actor), "critic": optax.sgd(lr_critic)}
     tx = per_part_optimizer(optimizers)
-    config = types.SimpleNamespace(eps_start=1.0, eps_end=0.1, eps_decay_episodes=10, eps_decay_start=2)
+    config = types.SimpleNamespace(eps_start=1.0, eps_end=0.1, eps_decay_episodes=10, eps_decay_start=2, length_buckets=1)
     update = jax.jit(ac.critic_then_actor_update(critic_targets, critic_values, actor_loss, optimizers, config))
     w, w_target = 0.7, -0.4
     theta = rng.normal(size=(b, g, length)).astype(np.float32)

@@ -11,7 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 from _value_references import stack
-from test_actor_critic import episode_slot, random_params
+from _learner_helpers import episode_slot, random_params
 
 import envs_jax
 from envs_jax.wrappers import AutoReset

@@ -8,7 +8,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from test_actor_critic import assert_frequencies, random_params
+from _learner_helpers import assert_frequencies, random_params
 
 from jaxmac.algos import make_algorithm
 from jaxmac.algos.tomacvf import network_configs

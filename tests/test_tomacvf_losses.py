@@ -34,6 +34,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 from _buffer_fixtures import synthetic_rollout
+from _learner_helpers import random_params
 
 from jaxmac.algos import make_algorithm
 from jaxmac.algos.base import Progress
@@ -100,14 +101,6 @@ def synthetic_episode(spec, seed, length, end, last_done, p=0.35):
                      mac=info["mac"], mac_done=mac_done, t_m=info["t_m"], reward=reward,
                      terminated=np.asarray(traj.terminated), truncated=np.asarray(traj.truncated))
     return reset_ts, traj, raw
-
-
-def random_params(init, seed, scale=0.4):
-    """Parameters of ``init``'s structure drawn from N(0, scale²) (only shapes traced)."""
-    shapes = jax.eval_shape(init, jax.random.key(0))
-    leaves, tree = jax.tree_util.tree_flatten(shapes)
-    rng = np.random.default_rng(seed)
-    return jax.tree_util.tree_unflatten(tree, [jnp.asarray(scale * rng.normal(size=x.shape), x.dtype) for x in leaves])
 
 
 @pytest.fixture(scope="module")

@@ -9,14 +9,14 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 import pytest
-from _buffer_fixtures import config_for, synthetic_rollout
+from _learner_helpers import episode_slot as learner_episode_slot
 from _value_references import available_argmax, brute_force_conditional_argmax, stack
 
 import envs_jax
 from jaxmac import centralised, decentralised, trainer
 from jaxmac.algos import REGISTRY, make_algorithm
 from jaxmac.algos.base import Progress
-from jaxmac.buffer import episode, views, windows
+from jaxmac.buffer import views, windows
 from jaxmac.config import make_env, scenario_config
 from jaxmac.networks.drqn import DRQN, AgentDRQN
 
@@ -26,24 +26,12 @@ H, GAMMA, L = 24, 0.9, 5
 # --- helpers ------------------------------------------------------------------------------------------------------
 
 
-def episode_slot(seed, length, end="truncated", n=2, p=0.35, obs_dim=3, num_actions=4, state_dim=2, gamma=GAMMA,
-                 last_done=None):
-    """A synthetic episode slot; ``last_done`` (bool[n]) forces the pattern of the last step (e.g. so that a
-    terminal step is kept by some agent)."""
-    rng = np.random.default_rng(seed)
-    mac_done = rng.random((H, n)) < p
-    if last_done is not None:
-        mac_done[length - 1] = last_done
-    reward = rng.normal(size=H).astype(np.float32)
-    reset_ts, traj, info = synthetic_rollout(mac_done, reward, length, end=end, obs_dim=obs_dim,
-                                             num_actions=num_actions, state_dim=state_dim, seed=seed)
-    cfg = config_for(H, n, gamma, obs_dim=obs_dim, num_actions=num_actions, state_dim=state_dim)
-    slot = _write(cfg, reset_ts, traj)
-    info.update(mac_done=mac_done, reward=reward, length=length, end=end)
-    return slot, info
+def episode_slot(seed, length, end="truncated", **kwargs):
+    """A synthetic episode slot of H rows (``_learner_helpers.episode_slot``); ``last_done`` (bool[n]) forces the
+    pattern of the last step (e.g. so that a terminal step is kept by some agent)."""
+    return learner_episode_slot(seed, length, end, h=H, **kwargs)
 
 
-_write = jax.jit(episode.write_episode, static_argnums=0)
 _window = jax.jit(windows.window_views, static_argnums=3)
 
 

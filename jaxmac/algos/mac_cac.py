@@ -76,7 +76,6 @@ def make_mac_cac(config: TrainConfig, env: MacroEnv) -> Algorithm:
         name="mac_cac", init_params=init_params,
         init_carry=lambda n: jnp.zeros((settings.actor_rnn_size,), jnp.float32), act=act, loss=None,
         optimizer=per_part_optimizer(optimizers),
-        update=ac.length_bucketed(ac.critic_then_actor_update(critic_targets, critic_values, actor_loss, optimizers,
-                                                             config), config.length_buckets),
+        update=ac.critic_then_actor_update(critic_targets, critic_values, actor_loss, optimizers, config),
         store=store_length, sample=on_policy_source(ac.prepare_on_policy(cert=False, jert=True)),
         greedy_act=greedy_act)

@@ -61,6 +61,5 @@ def make_mac_niacc(config: TrainConfig, env: MacroEnv) -> Algorithm:
     return Algorithm(
         name="mac_niacc", init_params=init_params, init_carry=actors.init_carry, act=actors.act, loss=None,
         optimizer=per_part_optimizer(optimizers),
-        update=ac.length_bucketed(ac.critic_then_actor_update(critic_targets, critic_values, actor_loss, optimizers,
-                                                             config), config.length_buckets),
+        update=ac.critic_then_actor_update(critic_targets, critic_values, actor_loss, optimizers, config),
         store=store_length, sample=on_policy_source(prepare), greedy_act=actors.greedy_act)
