@@ -39,6 +39,17 @@ def conditional_greedy(q: chex.Array, avail: chex.Array, free: chex.Array, runni
     return jnp.where(free, masked_argmax(q, avail), running).astype(jnp.int32)
 
 
+def admissible_actions(avail: chex.Array, free: chex.Array, running: chex.Array) -> chex.Array:
+    """bool[..., n, A]: the macro-actions agent i may take at a row — its available ones when it is free, only its
+    running one when it is busy (To-Mac-IGM's conditional action set, D9).
+
+    Args as ``conditional_greedy``. Rows whose busy agent has no running action (``running < 0``: padding beyond an
+    episode's end) keep ``avail`` so that a max over the set is defined; such rows are masked out of every loss.
+    """
+    pinned = (jnp.arange(avail.shape[-1]) == running[..., None]) | ((running[..., None] < 0) & avail)
+    return jnp.where(free[..., None], avail, pinned)
+
+
 def gather_q(q: chex.Array, actions: chex.Array) -> chex.Array:
     """Q_i of a joint action: f32[..., n] from ``q`` f32[..., n, A] and ``actions`` i32[..., n].
 

@@ -17,7 +17,8 @@ from __future__ import annotations
 import dataclasses
 from typing import Any
 
-MIXERS = ("qmix", "vdn", "qplex")
+MIXERS = ("qmix", "vdn", "qplex")  # AVF's
+TOMACVF_MIXERS = ("qmix", "vdn", "qplex", "qtran")
 
 
 def _check_choice(owner: str, name: str, value: Any, choices: tuple[str, ...]) -> None:
@@ -49,15 +50,21 @@ class ToMacVFSettings:
     fc_size: int = 64
     n_step: int = 1  # micro-TD n (D11)
     macro_loss_weight: float = 1.0  # λ (D8)
+    # D8: False = one step on L = micro + λ·macro; True = the paper's literal pseudocode, a micro-TD step then an
+    # additional λ·macro-TD step (on the updated parameters) when the batch holds a completed macro-action
+    sequential_updates: bool = False
     # weight of squared TD errors where Q_tot is above its target; 1 = plain MSE (D18), < 1 = optimistic
     # weighting (OW-QMIX's weighting without its Q*, hysteretic Q-learning): keeps the value of a joint
     # action that succeeded when partners' exploration makes it fail elsewhere
     overestimate_weight: float = 1.0
     buffer: str = "mac_sjert"  # D16 ablation: "mac_jert"
-    mixer: str = "qmix"  # D19
-    mixer_params: str = "atpg"  # D16: "state" = ToMacVF w/o ATPG (vanilla QMIX hypernets)
+    mixer: str = "qmix"  # D19: "qmix", "vdn", "qplex" (ToMacVF_QPLEX), "qtran" (ToMacVF_Qtran)
+    mixer_params: str = "atpg"  # D16: "state" = ToMacVF w/o ATPG (the mixer conditioned on s_t only)
     obs_mode: str = "real"  # D1
     mixer_embed: int = 32
+    hyper_hidden: int = 64  # hidden width of the mixer's hyper-networks (QTRAN: of Q_jt and V_jt)
+    qtran_opt_weight: float = 1.0  # QTRAN's L_opt weight (pymarl's opt_loss)
+    qtran_nopt_weight: float = 0.1  # QTRAN's L_nopt weight (pymarl's nopt_min_loss)
     attn_dim: int = 32
     attn_delta: float = 0.05  # agent-attention threshold δ (D5)
     attn_window: int = 0  # causal window in steps; 0 = whole episode (D4)
@@ -68,15 +75,24 @@ class ToMacVFSettings:
     def __post_init__(self):
         owner = "tomacvf"
         _check_choice(owner, "buffer", self.buffer, ("mac_sjert", "mac_jert"))
-        _check_choice(owner, "mixer", self.mixer, ("qmix", "vdn"))
+        _check_choice(owner, "mixer", self.mixer, TOMACVF_MIXERS)
         _check_choice(owner, "mixer_params", self.mixer_params, ("atpg", "state"))
+        if self.sequential_updates and self.buffer == "mac_jert":
+            raise ValueError(f"{owner}: sequential_updates=True alternates micro- and macro-TD steps, but "
+                             f"buffer='mac_jert' trains one TD loss; use buffer='mac_sjert' with it")
+        if self.mixer != "qtran" and (self.qtran_opt_weight, self.qtran_nopt_weight) != (1.0, 0.1):
+            raise ValueError(f"{owner}: qtran_opt_weight/qtran_nopt_weight are QTRAN's loss weights, but "
+                             f"mixer={self.mixer!r}; set mixer='qtran' or leave them at 1.0/0.1")
+        for name in ("qtran_opt_weight", "qtran_nopt_weight"):
+            if getattr(self, name) < 0:
+                raise ValueError(f"{owner}: {name}={getattr(self, name)!r} must be >= 0")
         _check_choice(owner, "obs_mode", self.obs_mode, ("real", "macro"))
         if self.buffer == "mac_jert" and self.obs_mode != "macro":
             raise ValueError(f"{owner}: buffer='mac_jert' keeps only the decision points' frozen macro-observations, so "
                              f"obs_mode={self.obs_mode!r} cannot be served; set obs_mode='macro' with it (or keep "
                              f"buffer='mac_sjert')")
-        _check_positive(owner, self, ("rnn_size", "fc_size", "n_step", "mixer_embed", "attn_dim", "time_pe_dim",
-                                      "progress_pe_dim"))
+        _check_positive(owner, self, ("rnn_size", "fc_size", "n_step", "mixer_embed", "hyper_hidden", "attn_dim",
+                                      "time_pe_dim", "progress_pe_dim"))
         for name in ("time_pe_dim", "progress_pe_dim"):
             if getattr(self, name) % 2:
                 raise ValueError(f"{owner}: {name}={getattr(self, name)!r} must be even (sine and cosine pairs)")

@@ -1,4 +1,4 @@
-"""ToMacVF: temporal agent networks + ATPG-parameterised QMIX, micro- and macro-TD (DECISIONS D2–D18).
+"""ToMacVF: temporal agent networks + ATPG-parameterised mixer, micro- and macro-TD (DECISIONS D2–D19).
 
 Parameters are ``{"agent": …, "mixer": …}`` (the mixer holds ATPG). On a sampled batch of
 episode slots (leaves ``[B, H, …]``, rows ``T = H + 1``):
@@ -12,7 +12,24 @@ episode slots (leaves ``[B, H, …]``, rows ``T = H + 1``):
 * bootstrap values use the conditional (To-Mac-IGM) target (D9): free agents take the online
   argmax at τ = 0 (double Q), busy agents keep their macro-action; the value comes from the
   target networks through the target mixer;
-* ``L = mean δ_micro² + λ · mean δ_macro²`` (D8).
+* ``L = mean δ_micro² + λ · mean δ_macro²`` (D8), one gradient step; with ``sequential_updates`` the paper's
+  literal pseudocode instead: a step on the micro-TD loss, then an additional step on ``λ · macro-TD`` (recomputed
+  with the updated parameters) when the batch holds a completed macro-action. Both steps share one Adam state.
+
+Mixers (D19, ``mixer``): QMIX (default), VDN, QPLEX, QTRAN, conditioned on ATPG's encodings with the state (or on the
+state alone with ``mixer_params='state'``; see ``networks.mixers``). Every Q_tot is evaluated on the *admissible*
+actions of its row (``targets.admissible_actions``: a busy agent's only admissible action is its running one):
+
+* QMIX/VDN: the mixer's weights do not depend on the choices at the row (D4) and are monotone in every Q_i, so the
+  conditional target's per-agent argmax is the exact conditional argmax of Q_tot.
+* QPLEX: ``V_i`` is the max over the admissible actions, so busy agents' advantages are zero and
+  ``Q_tot ≤ Σ_i V_i′`` with equality exactly when every free agent takes its argmax: again the per-agent conditional
+  argmax is the exact conditional argmax of Q_tot, although λ(s, a) depends on the joint action.
+* QTRAN: the TD losses train the joint ``Q_jt``; the target takes the conditional argmax of the factorised
+  ``Q′ = Σ_i Q_i`` (per-agent, exact for a sum) and values it with the target ``Q_jt`` (QTRAN's rule, not an argmax
+  of Q_jt). QTRAN's constraint losses tie ``Q′`` to ``Q_jt`` on every micro row (and every Mac-JERT entry):
+  ``w_opt · mean opt² + w_nopt · mean nopt²`` (``networks.mixers.qtran_penalties``; ā is the conditional greedy
+  joint action of the row, a the executed one). They are part of the micro step with ``sequential_updates``.
 
 ``buffer="mac_jert"`` (the w/o-Mac-SJERT ablation, D16) trains the same networks on the
 Mac-JERT view instead: the GRU and ATPG run over the squeezed sequence of joint decision
@@ -30,7 +47,7 @@ import jax.numpy as jnp
 
 from envs_jax.core import MacroEnv
 from jaxmac.acting import epsilon_greedy
-from jaxmac.algos.base import Algorithm, default_optimizer
+from jaxmac.algos.base import Algorithm, default_optimizer, gradient_update
 from jaxmac.buffer import views
 from jaxmac.buffer.episode import EpisodeSlot
 from jaxmac.config import TrainConfig
@@ -46,23 +63,44 @@ from jaxmac.networks import (
     init_mixer_params,
     initial_carry,
     jert_sequence,
-    mix,
     slot_inputs,
     take_rows,
     timestep_inputs,
 )
-from jaxmac.targets import conditional_greedy, gather_q
+from jaxmac.networks.mixers import mix_actions, qtran_penalties
+from jaxmac.targets import admissible_actions, conditional_greedy
 
 
 def network_configs(config: TrainConfig, env: MacroEnv) -> tuple[AgentNetConfig, MixerConfig]:
     spec, config = env.spec, config.algo
     enc = EncodingConfig(dim_t=config.time_pe_dim, dim_tm=config.progress_pe_dim, use_t=config.use_time_pe)
     agent = AgentNetConfig.from_spec(spec, hidden=config.rnn_size, fc=config.fc_size, encoding=enc)
-    kind = "vdn" if config.mixer == "vdn" else ("atpg_qmix" if config.mixer_params == "atpg" else "qmix")
+    kind = config.mixer if config.mixer == "vdn" or config.mixer_params == "state" else f"atpg_{config.mixer}"
     atpg = ATPGConfig.from_spec(spec, embed=config.attn_dim, delta=config.attn_delta,
                                 attn_window=config.attn_window or None, encoding=enc)
-    mixer = MixerConfig.from_spec(spec, kind=kind, embed=config.mixer_embed, atpg=atpg)
+    mixer = MixerConfig.from_spec(spec, kind=kind, embed=config.mixer_embed, hyper_hidden=config.hyper_hidden,
+                                  atpg=atpg)
     return agent, mixer
+
+
+def free_at_rows(mac_done: jax.Array) -> jax.Array:
+    """bool[..., H, n]: the agent chooses at row t (t = 0, or its macro-action ended at step t − 1)."""
+    first = jnp.ones_like(mac_done[..., :1, :])
+    return jnp.concatenate([first, mac_done[..., :-1, :]], axis=-2)
+
+
+def conditional_target(q_online, q_target, w_target, avail, free, pinned):
+    """The bootstrap value of a row under To-Mac-IGM (D9), double-Q: the joint action is chosen with the online
+    values — free agents take their available argmax, busy agents keep ``pinned`` — and valued by the target mixer
+    ``w_target`` on the target values over the same admissible sets. For QMIX, VDN and QPLEX that joint action is the
+    argmax of the online Q_tot over the admissible joint actions (see the module docstring); for QTRAN it is the
+    argmax of ``Σ_i Q_i`` and the value is the target ``Q_jt`` there.
+
+    Args: ``q_online``, ``q_target`` f32[..., n, A]; ``w_target`` MixWeights [...]; ``avail`` bool[..., n, A];
+    ``free`` bool[..., n]; ``pinned`` i32[..., n]. Returns (value f32[...], joint action i32[..., n]).
+    """
+    joint = conditional_greedy(q_online, avail, free, pinned)
+    return mix_actions(w_target, q_target, joint, admissible_actions(avail, free, pinned)), joint
 
 
 def make_tomacvf(config: TrainConfig, env: MacroEnv) -> Algorithm:
@@ -72,6 +110,7 @@ def make_tomacvf(config: TrainConfig, env: MacroEnv) -> Algorithm:
     settings = config.algo
     obs_mode = settings.obs_mode  # "macro" whenever buffer="mac_jert" (the settings refuse anything else)
     squeezed = settings.buffer == "mac_jert"
+    qtran = mixer_cfg.family == "qtran"
     lam = settings.macro_loss_weight
     weight = settings.overestimate_weight
 
@@ -93,64 +132,130 @@ def make_tomacvf(config: TrainConfig, env: MacroEnv) -> Algorithm:
             new_carry = jnp.where(jnp.any(ts.mac_done), new_carry, carry)
         return new_carry, epsilon_greedy(key, q, ts.avail_actions, ts.mac_done, ts.mac, epsilon)
 
-    # --- learning on Mac-SJERT ------------------------------------------------------------
+    # --- shared by both buffers ------------------------------------------------------------
     def forward(params, inputs, tau, state):
         b = inputs.t.shape[:-1]
         q, _, _ = net.apply(params["agent"], inputs, initial_carry(agent_cfg, b), tau)
         weights, _ = mixer.apply(params["mixer"], state, inputs)
         return q, weights
 
+    def q_tot(weights, q, actions, avail, free):
+        """Q_tot of the executed joint ``actions`` at rows whose choosing agents are ``free``."""
+        return mix_actions(weights, q, actions, admissible_actions(avail, free, actions))
+
     def bootstrap(q_online, q_target, w_target, rows, avail, free, pinned):
         """Q̄_tot at bootstrap ``rows`` [B, ...] with the conditional double-Q joint action."""
         qo, qt, wt = (take_rows(x, rows, batch_ndim=1) for x in (q_online, q_target, w_target))
-        joint = conditional_greedy(qo, avail, free, pinned)
-        return mix(wt, gather_q(qt, joint))
+        return conditional_target(qo, qt, wt, avail, free, pinned)[0]
 
-    def sjert_loss(params, target_params, batch: EpisodeSlot):
+    def qtran_terms(weights, q, actions, avail, free, mask):
+        """QTRAN's constraint losses on the rows of ``mask`` (none for the other mixers)."""
+        if not qtran:
+            return {}
+        greedy = conditional_greedy(jax.lax.stop_gradient(q), avail, free, actions)
+        opt, nopt = qtran_penalties(weights, q, actions, greedy)
+        return {"qtran_opt_loss": masked_mean(opt**2, mask), "qtran_nopt_loss": masked_mean(nopt**2, mask)}
+
+    # --- learning on Mac-SJERT ------------------------------------------------------------
+    def sjert_terms(params, target_params, batch: EpisodeSlot):
+        """Loss terms {micro_loss, macro_loss, QTRAN's (``qtran`` only)}, unweighted, and metrics."""
         inputs, tau = slot_inputs(batch, obs_mode)
         state = batch.decode_state()
         q, w = forward(params, inputs, tau, state)
         q_tgt, w_tgt = forward(target_params, inputs, tau, state)
         q_detached = jax.lax.stop_gradient(q)
         h = batch.mac.shape[-2]
+        free, avail = free_at_rows(batch.mac_done), batch.avail[:, :h]
 
         micro = views.micro_view(batch, settings.n_step)
-        first_rows = lambda tree, k: jax.tree_util.tree_map(lambda x: x[:, :k], tree)  # noqa: E731
-        q_tot = mix(first_rows(w, h), gather_q(q[:, :h], micro.mac))
+        w_now, q_now = w.map_rows(lambda x: x[:, :h]), q[:, :h]
+        q_tot_micro = q_tot(w_now, q_now, micro.mac, avail, free)
         boot = bootstrap(q_detached, q_tgt, w_tgt, micro.boot_row, micro.boot_avail, micro.boot_free,
                          micro.boot_mac)
         y_micro = jax.lax.stop_gradient(micro.ret + micro.boot_discount * boot)
-        micro_loss = td_mse(q_tot - y_micro, micro.mask, weight)
+        terms = {"micro_loss": td_mse(q_tot_micro - y_micro, micro.mask, weight)}
+        terms |= qtran_terms(w_now, q_now, micro.mac, avail, free, micro.mask)
 
         macro = views.macro_view(batch)  # leaves [B, n, K, ...]
-        q_start = take_rows(q, macro.start, batch_ndim=1)  # [B, n, K, n, A]
-        w_start = take_rows(w, macro.start, batch_ndim=1)
-        q_tot_m = mix(w_start, gather_q(q_start, macro.start_mac))
+        at_start = lambda x: take_rows(x, macro.start, batch_ndim=1)  # noqa: E731  [B, n, K, ...]
+        q_tot_macro = q_tot(at_start(w), at_start(q), macro.start_mac, at_start(avail), at_start(free))
         boot_m = bootstrap(q_detached, q_tgt, w_tgt, macro.boot_row, macro.boot_avail, macro.boot_free,
                            macro.boot_mac)
         y_macro = jax.lax.stop_gradient(macro.reward + macro.discount * boot_m)
-        macro_loss = td_mse(q_tot_m - y_macro, macro.mask, weight)
-        total = micro_loss + lam * macro_loss
-        return total, {"micro_loss": micro_loss, "macro_loss": macro_loss,
-                       "q_tot_mean": masked_mean(q_tot, micro.mask)}
+        terms["macro_loss"] = td_mse(q_tot_macro - y_macro, macro.mask, weight)
+        return terms, {"q_tot_mean": masked_mean(q_tot_micro, micro.mask)}
 
     # --- learning on Mac-JERT (ablation) ---------------------------------------------------
-    def jert_loss(params, target_params, batch: EpisodeSlot):
+    def jert_terms(params, target_params, batch: EpisodeSlot):
         jv, inputs, tau, state = jert_sequence(batch)
         q, w = forward(params, inputs, tau, state)
         q_tgt, w_tgt = forward(target_params, inputs, tau, state)
         kk = jv.mask.shape[-1]
-        q_tot = mix(jax.tree_util.tree_map(lambda x: x[:, :kk], w), gather_q(q[:, :kk], jv.mac))
+        w_now, q_now = w.map_rows(lambda x: x[:, :kk]), q[:, :kk]
+        free = free_at_rows(jv.free_next)  # the agents choosing at an entry ended their action at the one before
+        q_tot_now = q_tot(w_now, q_now, jv.mac, jv.avail, free)
         nxt = jnp.broadcast_to(jnp.arange(1, kk + 1), jv.mask.shape)
         boot = bootstrap(jax.lax.stop_gradient(q), q_tgt, w_tgt, nxt, jv.avail_next, jv.free_next, jv.next_mac)
         y = jax.lax.stop_gradient(jv.reward + jv.discount * boot)
-        loss = td_mse(q_tot - y, jv.mask, weight)
-        return loss, {"micro_loss": loss, "macro_loss": jnp.zeros(()),
-                      "q_tot_mean": masked_mean(q_tot, jv.mask)}
+        terms = {"micro_loss": td_mse(q_tot_now - y, jv.mask, weight), "macro_loss": jnp.zeros(())}
+        terms |= qtran_terms(w_now, q_now, jv.mac, jv.avail, free, jv.mask)
+        return terms, {"q_tot_mean": masked_mean(q_tot_now, jv.mask)}
+
+    terms_of = jert_terms if squeezed else sjert_terms
+    term_weights = {"micro_loss": 1.0, "macro_loss": lam, "qtran_opt_loss": settings.qtran_opt_weight,
+                    "qtran_nopt_loss": settings.qtran_nopt_weight}
 
     def loss(params, target_params, batch: EpisodeSlot, key, progress):
         del key, progress
-        return (jert_loss if squeezed else sjert_loss)(params, target_params, batch)
+        terms, metrics = terms_of(params, target_params, batch)
+        return weighted_sum(terms, term_weights), metrics | terms
 
+    optimizer = default_optimizer(config)
+    update = sequential_update(terms_of, term_weights, optimizer) if settings.sequential_updates else None
     return Algorithm(name="tomacvf", init_params=init_params, init_carry=init_carry, act=act, loss=loss,
-                     optimizer=default_optimizer(config))
+                     optimizer=optimizer, update=update)
+
+
+def weighted_sum(terms: dict, weights: dict) -> jax.Array:
+    """Σ_k weights[k] · terms[k] (a weight of 1 is not multiplied, so the plain micro loss is bit-exact)."""
+    return sum(value if weights[name] == 1.0 else weights[name] * value for name, value in terms.items())
+
+
+def sequential_update(terms_of, term_weights, optimizer):
+    """D8's literal two-step update: a gradient step on every term but the macro-TD loss, then one on
+    ``λ · macro-TD`` recomputed with the updated parameters — skipped when the batch has no completed
+    macro-action (an Adam step on a zero gradient would still move the parameters). Metrics: the first step's terms
+    and ``grad_norm``, the second's ``macro_loss`` (unweighted) and ``grad_norm_macro``; ``loss`` is the first step's
+    loss plus λ · macro_loss."""
+    lam = term_weights["macro_loss"]
+
+    def micro_part(params, target_params, batch, key, progress):
+        terms, metrics = terms_of(params, target_params, batch)
+        terms.pop("macro_loss")
+        return weighted_sum(terms, term_weights), metrics | terms
+
+    def macro_part(params, target_params, batch, key, progress):
+        terms, _ = terms_of(params, target_params, batch)
+        return lam * terms["macro_loss"], {"macro_loss": terms["macro_loss"]}
+
+    micro_step = gradient_update(micro_part, optimizer)
+    macro_step = gradient_update(macro_part, optimizer)
+
+    def update(params, target_params, opt_state, batch, key, progress):
+        params, opt_state, metrics = micro_step(params, target_params, opt_state, batch, key, progress)
+        has_macro = jnp.any(views.macro_view(batch).mask)
+
+        def step(args):
+            p, o = args
+            p, o, m = macro_step(p, target_params, o, batch, key, progress)
+            return p, o, m["macro_loss"], m["grad_norm"]
+
+        def skip(args):
+            return args[0], args[1], jnp.zeros(()), jnp.zeros(())
+
+        params, opt_state, macro_loss, macro_norm = jax.lax.cond(has_macro, step, skip, (params, opt_state))
+        metrics = metrics | {"macro_loss": macro_loss, "grad_norm_macro": macro_norm,
+                             "loss": metrics["loss"] + lam * macro_loss}
+        return params, opt_state, metrics
+
+    return update
