@@ -1,7 +1,8 @@
 """The ``jaxmac`` command line.
 
     jaxmac rollout --env boxpushing-6x6 --episodes 1000   # random-policy rollouts + rendering
-    jaxmac train --scenario boxpushing-6x6 --seeds 8      # ToMacVF, progress bar, run folder
+    jaxmac train --preset quickstart                      # ToMacVF learning Box Pushing 6x6 in a few minutes
+    jaxmac train --scenario boxpushing-6x6 --seeds 8      # ToMacVF with the paper's settings, run folder
     jaxmac train --algorithm maccen_ddrqn --seeds 4       # a baseline with its original settings
     jaxmac train --resume runs/RUN_DIR                    # continue a killed run
     jaxmac eval runs/RUN_DIR                              # greedy episode: text + PNG strip
@@ -47,7 +48,7 @@ def cmd_rollout(args) -> int:
 
 
 def cmd_train(args) -> int:
-    from jaxmac.config import scenario_config
+    from jaxmac.config import preset_config, scenario_config
     from jaxmac.run import default_out_dir, enable_compilation_cache, resume_run, train_run
     from jaxmac.workers import is_worker_run, resume_workers, train_workers
 
@@ -57,6 +58,7 @@ def cmd_train(args) -> int:
 
         diverged = os.path.exists(os.path.join(args.resume, "diverged.json"))
         ignored = [flag for flag, given in (("--scenario", args.scenario is not None), ("--seeds", args.seeds is not None),
+                                            ("--preset", args.preset is not None),
                                             ("--set", bool(args.set) and not diverged), ("--tiny", args.tiny),
                                             ("--out", args.out is not None), ("--workers", args.workers is not None),
                                             ("--algorithm", args.algorithm is not None)) if given]
@@ -70,7 +72,18 @@ def cmd_train(args) -> int:
                                  assignments=args.set)
         out = args.resume
     else:
-        config = scenario_config(args.scenario or "boxpushing-6x6", args.algorithm or "tomacvf", tiny=args.tiny)
+        if args.preset is not None:
+            clash = [flag for flag, given in (("--scenario", args.scenario is not None), ("--tiny", args.tiny),
+                                              ("--algorithm", args.algorithm is not None)) if given]
+            if clash:
+                raise ValueError(f"--preset {args.preset} fixes the scenario, learner and sizes; {', '.join(clash)} "
+                                 "cannot be combined with it (--seeds, --episodes and --set can)")
+            config, preset = preset_config(args.preset)
+            print(f"preset {args.preset}: {preset.about}")
+            if args.seeds is None:
+                args.seeds = preset.seeds
+        else:
+            config = scenario_config(args.scenario or "boxpushing-6x6", args.algorithm or "tomacvf", tiny=args.tiny)
         if args.episodes is not None:
             config = config.override(episodes=args.episodes)
         config = config.override_strings(args.set)
@@ -114,9 +127,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_rollout)
 
     from jaxmac.algos import REGISTRY
-    from jaxmac.config import SCENARIOS
+    from jaxmac.config import PRESETS, SCENARIOS
 
     p = sub.add_parser("train", help="train a learner (default ToMacVF) on a scenario, vmapped over seeds")
+    p.add_argument("--preset", default=None, choices=list(PRESETS),
+                   help="a named configuration (scenario, learner, settings, seeds): " + "; ".join(
+                       f"{name}: {preset.about}" for name, preset in PRESETS.items()))
     p.add_argument("--scenario", default=None, choices=list(SCENARIOS), help="default: boxpushing-6x6")
     p.add_argument("--algorithm", default=None, choices=list(REGISTRY),
                    help="default: tomacvf; each starts from its original script's settings for the scenario")

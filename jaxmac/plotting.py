@@ -49,7 +49,8 @@ def plot_curves(curves: list[tuple[str, np.ndarray, np.ndarray]], png_path: str,
                 optimum: float | None = None, window: int = 10, pdf: bool = False,
                 ylabel: str = "evaluation return (discounted)") -> None:
     """Several learning curves on one axis: for each ``(label, episodes [P], values [seeds, P])`` the mean ± s.e.
-    over seeds of the trailing ``window``-point moving average (DECISIONS D15); ``pdf`` also writes a PDF. The
+    over seeds of the trailing ``window``-point moving average (DECISIONS D15; capped at a tenth of the points, so
+    that a short run's last evaluations are not averaged with its first); ``pdf`` also writes a PDF. The
     evaluation return is greedy for the value learners and sampled from the policy for the actor-critics (as
     their originals evaluate)."""
     import matplotlib
@@ -57,6 +58,8 @@ def plot_curves(curves: list[tuple[str, np.ndarray, np.ndarray]], png_path: str,
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    points = max((len(episodes) for _, episodes, _ in curves), default=0)
+    window = max(1, min(window, points // 10))
     fig, ax = plt.subplots(figsize=(6.4, 4.0), dpi=120)
     for label, episodes, values in curves:
         if not values.size:
@@ -70,7 +73,8 @@ def plot_curves(curves: list[tuple[str, np.ndarray, np.ndarray]], png_path: str,
         ax.axhline(optimum, color="k", ls="--", lw=1, label=f"optimal ({optimum:.1f})")
     ax.set_xlabel("training episodes")
     ax.set_ylabel(ylabel)
-    ax.set_title(f"{title}\nmean ± s.e. over seeds, {window}-point moving average", fontsize=9)
+    smoothing = f"{window}-point moving average" if window > 1 else "not smoothed"
+    ax.set_title(f"{title}\nmean ± s.e. over seeds, {smoothing}", fontsize=9)
     ax.grid(alpha=0.3)
     ax.legend(loc="lower right", fontsize=8)
     fig.tight_layout()

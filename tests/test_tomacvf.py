@@ -202,6 +202,21 @@ def test_cli_resume_refuses_options_it_would_ignore(tmp_path, capsys):
     assert "--set cannot change it" in capsys.readouterr().err
 
 
+def test_presets_are_the_scenario_settings_with_their_overrides_and_refuse_what_they_fix(capsys):
+    from jaxmac.cli import main
+    from jaxmac.config import PRESETS, preset_config
+
+    for name, preset in PRESETS.items():
+        config, _ = preset_config(name)
+        base = scenario_config(preset.scenario, preset.algorithm).flat_dict()
+        changed = {k: v for k, v in config.flat_dict().items() if base[k] != v}
+        assert changed == preset.overrides, name  # every override takes effect, nothing else changes
+    assert main(["train", "--preset", "quickstart", "--scenario", "overcooked-A"]) == 2
+    assert "--scenario cannot be combined" in capsys.readouterr().err
+    with pytest.raises(ValueError, match="unknown preset 'fast'; valid presets: .*quickstart"):
+        preset_config("fast")
+
+
 def test_config_errors_name_the_value():
     with pytest.raises(ValueError, match="buffer='sjert'.*choices"):
         TINY.override(buffer="sjert")
