@@ -1,12 +1,12 @@
-"""Where a round of an on-policy learner spends its time: collection, and the update at every length bucket.
+"""Where a round of a learner with length buckets spends its time: collection, and the update at every bucket.
 
     python benchmarks/update_profile.py [--algorithm mac_iaicc] [--scenario overcooked-A] [--epsilon 1.0]
                                         [--repeats 5] [--set KEY=VALUE ...]
 
-One seed, ``jax.jit`` of each piece, the scenario's configuration: a round's first-finished collection of
-``num_envs`` episodes with freshly initialised parameters (ε as given), then ``algorithm.update`` on those episodes
-cut to each static length of ``bucket_sizes(H, length_buckets)`` that holds them (the trainer picks the smallest),
-and the full length. Printed: milliseconds per call (median of ``--repeats``) and the batch's real entries; with
+One seed, ``jax.jit`` of each piece, the scenario's configuration: a first-finished collection of episodes with
+freshly initialised parameters (ε as given) — a round's ``num_envs`` for the on-policy learners (their batch), a
+replay batch's ``batch_size`` for ToMacVF — then ``algorithm.update`` on that batch cut to each static length of
+``bucket_sizes(H, length_buckets)`` that holds it (the trainer picks the smallest), and the full length. Printed: milliseconds per call (median of ``--repeats``) and the batch's real entries; with
 other jobs on the machine read the ratios between the lines, not the milliseconds.
 """
 
@@ -21,8 +21,8 @@ def main(argv=None) -> None:
     from jaxmac.algos import REGISTRY
 
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    on_policy = [name for name, entry in REGISTRY.items() if entry.length_buckets]
-    p.add_argument("--algorithm", default="mac_iaicc", choices=on_policy)
+    bucketed = [name for name, entry in REGISTRY.items() if entry.length_buckets]
+    p.add_argument("--algorithm", default="mac_iaicc", choices=bucketed)
     p.add_argument("--scenario", default="overcooked-A")
     p.add_argument("--epsilon", type=float, default=1.0, help="exploration rate of the profiled collection")
     p.add_argument("--repeats", type=int, default=5)
@@ -33,7 +33,7 @@ def main(argv=None) -> None:
     import jax.numpy as jnp
 
     from jaxmac.algos import make_algorithm
-    from jaxmac.algos.base import Progress
+    from jaxmac.algos.base import Progress, store_length
     from jaxmac.buckets import bucket_sizes
     from jaxmac.buffer.episode import write_episode
     from jaxmac.collect import run_episodes_first_finished
@@ -45,7 +45,8 @@ def main(argv=None) -> None:
     algorithm = make_algorithm(config, env)
     trainer = make_train(config, env, algorithm)
     state = jax.jit(trainer.init)(jax.random.key(0))
-    E = config.num_envs
+    replay = algorithm.store is not store_length  # a replay learner (ToMacVF) samples episode slots from its ring
+    E = config.batch_size if replay else config.num_envs
 
     def timed(fn, *xs):
         out = jax.block_until_ready(fn(*xs))  # compile
@@ -63,12 +64,16 @@ def main(argv=None) -> None:
         return jax.vmap(write_episode, in_axes=(None, 0, 0))(trainer.slot_config, reset_ts, traj)
 
     ms, slots = timed(collect, state.params, jax.random.key(1))
-    batch = jax.jit(lambda s: algorithm.sample(None, s, None))(slots)
-    real = int(batch.entries())
-    full = (batch.cert if batch.cert is not None else batch.jert).mask.shape[-1]
-    print(f"{args.scenario}: {args.algorithm}, {E} episodes per round (mean length {float(slots.length.mean()):.1f} "
+    if replay:
+        batch, real, full = slots, int(slots.length.max()), env.spec.horizon
+    else:
+        batch = jax.jit(lambda s: algorithm.sample(None, s, None))(slots)
+        real = int(batch.entries())
+        full = (batch.cert if batch.cert is not None else batch.jert).mask.shape[-1]
+    what = "sampled batch" if replay else "round"
+    print(f"{args.scenario}: {args.algorithm}, {E} episodes per {what} (mean length {float(slots.length.mean()):.1f} "
           f"of {env.spec.horizon}); longest real sequence {real} of {full} entries")
-    print(f"  collection of one round: {ms:8.1f} ms")
+    print(f"  collection of {E} episodes: {ms:8.1f} ms")
     zero = jnp.zeros((), jnp.int32)
     progress = Progress(episodes=zero, env_steps=zero, updates=zero)
     plain = config.override(length_buckets=1)

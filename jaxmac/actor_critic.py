@@ -32,7 +32,7 @@ import optax
 from flax import struct
 
 from jaxmac.acting import epsilon_schedule
-from jaxmac.buckets import bucket_sizes, run_bucketed
+from jaxmac.buckets import length_bucketed
 from jaxmac.buffer import views, windows
 from jaxmac.buffer.episode import EpisodeSlot
 from jaxmac.centralised import joint_obs
@@ -168,7 +168,7 @@ def critic_then_actor_update(critic_targets: CriticTargets, critic_values: Criti
     ``critic_targets`` and ``critic_values`` return arrays ``[B, g, L]`` (g critic groups, L entries);
     ``actor_loss(actor_params, batch, advantage, epsilon)`` maps the advantages to its own entries. ε is the
     exploration rate the episodes were collected with (the schedule at ``progress.episodes``). The step runs on the
-    batch cut to its real entries, in ``config.length_buckets`` static sizes (``length_bucketed``).
+    batch cut to its real entries, in ``config.length_buckets`` static sizes (``on_policy_bucketed``).
     """
 
     def update(params, target_params, opt_state, batch, key, progress):
@@ -198,7 +198,7 @@ def critic_then_actor_update(critic_targets: CriticTargets, critic_values: Criti
         }
         return {"actor": actor, "critic": critic}, {"actor": a_state, "critic": c_state}, metrics
 
-    return length_bucketed(update, config.length_buckets)
+    return on_policy_bucketed(update, config.length_buckets)
 
 
 def check_on_policy(config, algorithm: str) -> None:
@@ -252,19 +252,11 @@ class OnPolicyBatch:
                for name in ("cert_state", "cert_state_next", "start_joint", "end_joint")})
 
 
-def length_bucketed(update, buckets: int):
-    """``update`` run on the batch's shortest prefix that holds every real entry (``jaxmac.buckets``): one
-    compiled version per size of ``bucket_sizes(full length, buckets)``; ``buckets = 1`` is the plain update."""
-    bucket_sizes(1, buckets)  # validate now, not at tracing
-    if buckets == 1:
-        return update
-
-    def bucketed(params, target_params, opt_state, batch: OnPolicyBatch, key, progress):
-        full = (batch.cert if batch.cert is not None else batch.jert).mask.shape[-1]
-        return run_bucketed(lambda size: update(params, target_params, opt_state, batch.prefix(size), key, progress),
-                            bucket_sizes(full, buckets), batch.entries())
-
-    return bucketed
+def on_policy_bucketed(update, buckets: int):
+    """``update`` on the batch's shortest prefix that holds every real Mac-CERT / Mac-JERT entry
+    (``buckets.length_bucketed``)."""
+    full = lambda batch: (batch.cert if batch.cert is not None else batch.jert).mask.shape[-1]  # noqa: E731
+    return length_bucketed(update, buckets, full, OnPolicyBatch.entries)
 
 
 def prepare_on_policy(cert: bool = True, jert: bool = True, cert_states: bool = False, alignment: bool = False):

@@ -54,3 +54,19 @@ def run_bucketed(fn: Callable, sizes: tuple[int, ...], need: chex.Array, *args):
     need = across_seeds(jax.lax.pmax, jnp.asarray(need, jnp.int32))
     index = jnp.minimum(jnp.searchsorted(jnp.asarray(sizes, jnp.int32), need), len(sizes) - 1)
     return jax.lax.switch(index, [functools.partial(fn, s) for s in sizes], *args)
+
+
+def length_bucketed(update: Callable, buckets: int, full: Callable, need: Callable) -> Callable:
+    """A learner's ``update(params, target_params, opt_state, batch, key, progress)`` run on ``batch.prefix(size)``,
+    the shortest of ``bucket_sizes(full(batch), buckets)`` that holds ``need(batch)`` (i32[], the longest real
+    sequence; the maximum over seeds); ``buckets = 1`` returns ``update`` itself (the full-length reference path).
+    ``full(batch)`` is the static full length."""
+    bucket_sizes(1, buckets)  # validate now, not at tracing
+    if buckets == 1:
+        return update
+
+    def bucketed(params, target_params, opt_state, batch, key, progress):
+        return run_bucketed(lambda size: update(params, target_params, opt_state, batch.prefix(size), key, progress),
+                            bucket_sizes(full(batch), buckets), need(batch))
+
+    return bucketed

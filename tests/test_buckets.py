@@ -34,8 +34,9 @@ def test_bucket_sizes_halve_from_the_full_length_and_refuse_bad_counts():
 
 def test_config_refuses_buckets_for_a_learner_without_them():
     with pytest.raises(ValueError) as err:
-        scenario_config("boxpushing-6x6", "tomacvf", tiny=True).override(length_buckets=3)
-    assert "length_buckets=3" in str(err.value) and "'tomacvf'" in str(err.value) and "mac_iaicc" in str(err.value)
+        scenario_config("boxpushing-6x6", "maccen_ddrqn", tiny=True).override(length_buckets=3)
+    assert "length_buckets=3" in str(err.value) and "'maccen_ddrqn'" in str(err.value) and "mac_iaicc" in str(err.value)
+    assert "tomacvf" in str(err.value)
     with pytest.raises(ValueError, match="length_buckets=0"):
         scenario_config("boxpushing-6x6", "mac_iaicc", tiny=True).override(length_buckets=0)
 
@@ -110,6 +111,65 @@ def test_the_bucketed_update_equals_the_full_length_update(short_batch, algorith
     for name in full_metrics:
         np.testing.assert_allclose(np.asarray(full_metrics[name]), np.asarray(cut_metrics[name]), rtol=1e-5,
                                    atol=1e-6, err_msg=name)
+
+
+# --- ToMacVF: the update on the sampled episodes' shortest prefix ------------------------------------------------
+
+TOMACVF_CASES = [("boxpushing-6x6", "mac_sjert"), ("boxpushing-6x6", "mac_jert"), ("overcooked-A", "mac_sjert"),
+                 ("overcooked-A", "mac_jert")]
+
+
+@pytest.mark.parametrize("scenario,buffer", TOMACVF_CASES, ids=[f"{s}-{b}" for s, b in TOMACVF_CASES])
+def test_tomacvf_loss_gradients_and_update_on_the_prefix_equal_the_full_length(scenario, buffer):
+    """Box Pushing (2 agents) and Overcooked-A (3 agents), Mac-SJERT and Mac-JERT, terminated and truncated episodes
+    of at most 8 steps in 16-row slots: the loss, its gradients and the bucketed update equal the full-length ones."""
+    values = dict(horizon=16, n_step=2, batch_size=3, macro_loss_weight=0.6)
+    if buffer == "mac_jert":
+        values.update(buffer="mac_jert", obs_mode="macro")
+    config = scenario_config(scenario, "tomacvf", tiny=True).override(**values)
+    env = make_env(config)
+    spec = env.spec
+    shape = dict(h=16, n=spec.num_agents, obs_dim=spec.obs_dim, num_actions=spec.max_actions,
+                 state_dim=spec.state_dim, gamma=spec.discount)
+    done = lambda first: [first] + [False] * (spec.num_agents - 1)  # noqa: E731
+    slots = stack([episode_slot(seed, length, end, p=0.5, last_done=last, **shape)[0]
+                   for seed, length, end, last in ((90, 7, "terminated", done(True)), (91, 8, "truncated", None),
+                                                    (92, 5, "terminated", done(False)))])
+    cut = slots.prefix(8)
+    assert cut.mac.shape[1] == 8 and cut.state.shape[1] == 9 and cut.config.horizon == 8
+    assert int(slots.segments.valid.sum()) == int(cut.segments.valid.sum()) > 0
+
+    algo = make_algorithm(config, env)
+    params, target = random_params(algo.init_params, 30, 0.3), random_params(algo.init_params, 31, 0.3)
+    progress = Progress(episodes=jnp.int32(8), env_steps=jnp.int32(60), updates=jnp.int32(1))
+    grad = jax.jit(jax.value_and_grad(lambda p, b: algo.loss(p, target, b, jax.random.key(1), progress), has_aux=True))
+    (loss_full, metrics_full), g_full = grad(params, slots)
+    (loss_cut, metrics_cut), g_cut = grad(params, cut)
+    np.testing.assert_allclose(float(loss_cut), float(loss_full), rtol=1e-5)
+    assert float(loss_full) > 0
+    for name in metrics_full:
+        np.testing.assert_allclose(np.asarray(metrics_cut[name]), np.asarray(metrics_full[name]), rtol=1e-5,
+                                   atol=1e-6, err_msg=name)
+    for a, b in zip(jax.tree_util.tree_leaves(g_full), jax.tree_util.tree_leaves(g_cut)):  # float32 round-off
+        np.testing.assert_allclose(np.asarray(b), np.asarray(a), rtol=1e-4, atol=1e-6 * max(1.0, float(jnp.abs(a).max())))
+
+    bucketed = make_algorithm(config.override(length_buckets=2), env)  # sizes (8, 16): the batch takes 8
+    args = (params, target, algo.optimizer.init(params), slots, jax.random.key(1), progress)
+    update = jax.jit(bucketed.update)
+    assert "stablehlo.case" in update.lower(*args).as_text()
+    new_full, _, m_full = jax.jit(algo.update)(*args)
+    new_cut, _, m_cut = update(*args)
+    # Adam's first step is ≈ lr·sign(g): where a gradient entry is ~0 (the gradients were compared above) its
+    # round-off can move that entry's step by a good part of lr, so the parameters are compared to half of lr
+    for a, b in zip(jax.tree_util.tree_leaves(new_full), jax.tree_util.tree_leaves(new_cut)):
+        np.testing.assert_allclose(np.asarray(b), np.asarray(a), rtol=1e-5, atol=0.5 * config.lr)
+    np.testing.assert_allclose(float(m_cut["grad_norm"]), float(m_full["grad_norm"]), rtol=1e-5)
+
+
+def test_a_prefix_shorter_than_the_horizon_is_refused_beyond_it():
+    slot, _ = episode_slot(1, 5, "terminated", h=16)
+    with pytest.raises(ValueError, match="rows=17"):
+        slot.prefix(17)
 
 
 # --- the early-stopping first-finished collection --------------------------------------------------------------

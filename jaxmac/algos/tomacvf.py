@@ -35,6 +35,11 @@ actions of its row (``targets.admissible_actions``: a busy agent's only admissib
 Mac-JERT view instead: the GRU and ATPG run over the squeezed sequence of joint decision
 rows with frozen macro-observations, one TD loss with the conditional target.
 
+The update runs on the sampled episodes cut to the shortest of ``length_buckets`` static lengths (halving from H)
+that holds the longest of them (``EpisodeSlot.prefix``, ``buckets.length_bucketed``): the networks are causal and
+every target row lies within an episode's length, so the losses are those of the full-length slots, at the cost of
+the real lengths (1 = always the full horizon, the reference path).
+
 Acting (D17) is decentralised: each agent's GRU steps on its own observation stream and a
 free agent picks ε-greedily among its available macro-actions (τ = 0); the mixer is never
 used. In ``mac_jert`` mode the GRU steps only at joint decision points, as in training.
@@ -48,6 +53,7 @@ import jax.numpy as jnp
 from envs_jax.core import MacroEnv
 from jaxmac.acting import epsilon_greedy
 from jaxmac.algos.base import Algorithm, default_optimizer, gradient_update
+from jaxmac.buckets import length_bucketed
 from jaxmac.buffer import views
 from jaxmac.buffer.episode import EpisodeSlot
 from jaxmac.config import TrainConfig
@@ -211,7 +217,13 @@ def make_tomacvf(config: TrainConfig, env: MacroEnv) -> Algorithm:
         return weighted_sum(terms, term_weights), metrics | terms
 
     optimizer = default_optimizer(config)
-    update = sequential_update(terms_of, term_weights, optimizer) if settings.sequential_updates else None
+    if settings.sequential_updates:
+        update = sequential_update(terms_of, term_weights, optimizer)
+    else:
+        update = gradient_update(loss, optimizer)
+    # on the batch's shortest prefix that holds its longest episode (the full horizon when length_buckets = 1)
+    update = length_bucketed(update, config.length_buckets, lambda batch: batch.config.horizon,
+                             lambda batch: jnp.max(batch.length))
     return Algorithm(name="tomacvf", init_params=init_params, init_carry=init_carry, act=act, loss=loss,
                      optimizer=optimizer, update=update)
 

@@ -216,6 +216,27 @@ class EpisodeSlot:
         """float32 global states ``[..., H+1, S]``."""
         return self.state.astype(jnp.float32)
 
+    def prefix(self, rows: int) -> EpisodeSlot:
+        """The slots (any leading batch axes) cut to their first ``rows`` steps (``rows + 1`` state rows) and
+        ``min(K, rows)`` segments per agent, with ``config.horizon = rows``. Exact for every episode of length
+        ≤ ``rows``: its valid steps, its bootstrap row and its completed segments (at most one per step, in order)
+        all lie in the prefix, and what is cut is padding."""
+        cfg = self.config
+        if not isinstance(rows, int) or not 1 <= rows <= cfg.horizon:
+            raise ValueError(f"EpisodeSlot.prefix: rows={rows!r} must be an integer in [1, horizon={cfg.horizon}]")
+        lead = self.length.ndim  # batch axes
+        k = min(cfg.k_max, rows)
+        cut = lambda size, axis: lambda x: jax.lax.slice_in_dim(x, 0, size, axis=axis)  # noqa: E731
+        steps, per_row, per_segment = cut(rows, lead), cut(rows + 1, lead), cut(k, lead + 1)
+        return self.replace(
+            state=per_row(self.state), obs_real=per_row(self.obs_real), obs_macro=per_row(self.obs_macro),
+            avail=per_row(self.avail), mac=steps(self.mac), mac_done=steps(self.mac_done), t_m=steps(self.t_m),
+            reward=steps(self.reward), terminated=steps(self.terminated), truncated=steps(self.truncated),
+            valid=steps(self.valid),
+            segments=self.segments.replace(**{name: per_segment(getattr(self.segments, name))
+                                               for name in ("start", "end", "duration", "mac", "R_m", "valid")}),
+            config=dataclasses.replace(cfg, horizon=rows, k_max=k))
+
 
 def slot_nbytes(slot_or_config: EpisodeSlot | SlotConfig) -> int:
     """Bytes of one (unbatched) slot."""
