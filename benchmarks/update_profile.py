@@ -6,7 +6,9 @@
 One seed, ``jax.jit`` of each piece, the scenario's configuration: a first-finished collection of episodes with
 freshly initialised parameters (ε as given) — a round's ``num_envs`` for the on-policy learners (their batch), a
 replay batch's ``batch_size`` for ToMacVF — then ``algorithm.update`` on that batch cut to each static length of
-``bucket_sizes(H, length_buckets)`` that holds it (the trainer picks the smallest), and the full length. Printed: milliseconds per call (median of ``--repeats``) and the batch's real entries; with
+``bucket_sizes(H, length_buckets)`` that holds it (the trainer picks the smallest), and the full length; for ToMacVF also the update with ``packing`` (the episodes packed into the fewest rows of
+``bucket_sizes(B, length_buckets)``). ``--run RUN_DIR`` (ToMacVF) samples the batch from that run's replay ring
+(its first seed's, as checkpointed) instead of collecting it. Printed: milliseconds per call (median of ``--repeats``) and the batch's real entries; with
 other jobs on the machine read the ratios between the lines, not the milliseconds.
 """
 
@@ -27,6 +29,8 @@ def main(argv=None) -> None:
     p.add_argument("--epsilon", type=float, default=1.0, help="exploration rate of the profiled collection")
     p.add_argument("--repeats", type=int, default=5)
     p.add_argument("--set", dest="assignments", action="append", default=[], metavar="KEY=VALUE")
+    p.add_argument("--run", default=None, metavar="RUN_DIR",
+                   help="ToMacVF: sample the batch from this run's ring (its config replaces --scenario/--set)")
     args = p.parse_args(argv)
 
     import jax
@@ -40,11 +44,20 @@ def main(argv=None) -> None:
     from jaxmac.config import make_env, scenario_config
     from jaxmac.trainer import make_train
 
-    config = scenario_config(args.scenario, args.algorithm).override_strings(args.assignments)
-    env = make_env(config)
-    algorithm = make_algorithm(config, env)
-    trainer = make_train(config, env, algorithm)
-    state = jax.jit(trainer.init)(jax.random.key(0))
+    if args.run is not None:
+        from jaxmac.buffer import ring as ring_lib
+        from jaxmac.run import load_run
+
+        trainer, run_state, _, _ = load_run(args.run)
+        config, env, algorithm = trainer.config, trainer.env, trainer.algorithm
+        state = jax.tree_util.tree_map(lambda x: x[0], run_state)
+        args.scenario, args.algorithm = config.scenario, config.algorithm
+    else:
+        config = scenario_config(args.scenario, args.algorithm).override_strings(args.assignments)
+        env = make_env(config)
+        algorithm = make_algorithm(config, env)
+        trainer = make_train(config, env, algorithm)
+        state = jax.jit(trainer.init)(jax.random.key(0))
     replay = algorithm.store is not store_length  # a replay learner (ToMacVF) samples episode slots from its ring
     E = config.batch_size if replay else config.num_envs
 
@@ -63,7 +76,10 @@ def main(argv=None) -> None:
                                                      args.epsilon, E, E)
         return jax.vmap(write_episode, in_axes=(None, 0, 0))(trainer.slot_config, reset_ts, traj)
 
-    ms, slots = timed(collect, state.params, jax.random.key(1))
+    if args.run is not None:
+        ms, slots = timed(jax.jit(lambda ring, key: ring_lib.sample(ring, key, E)[0]), state.ring, jax.random.key(1))
+    else:
+        ms, slots = timed(collect, state.params, jax.random.key(1))
     if replay:
         batch, real, full = slots, int(slots.length.max()), env.spec.horizon
     else:
@@ -73,7 +89,7 @@ def main(argv=None) -> None:
     what = "sampled batch" if replay else "round"
     print(f"{args.scenario}: {args.algorithm}, {E} episodes per {what} (mean length {float(slots.length.mean()):.1f} "
           f"of {env.spec.horizon}); longest real sequence {real} of {full} entries")
-    print(f"  collection of {E} episodes: {ms:8.1f} ms")
+    print(f"  {'sampling' if args.run else 'collection'} of {E} episodes: {ms:8.1f} ms")
     zero = jnp.zeros((), jnp.int32)
     progress = Progress(episodes=zero, env_steps=zero, updates=zero)
     plain = config.override(length_buckets=1)
@@ -83,6 +99,14 @@ def main(argv=None) -> None:
                       jax.random.key(2), progress)
         label = "full length" if size == full else f"bucket of {size}"
         print(f"  update on {label:>15}: {ms:8.1f} ms")
+    if replay:
+        from jaxmac.buffer.packing import pack_plan
+
+        rows = int(pack_plan(batch.length, full + 1).rows_used)
+        packed = jax.jit(make_algorithm(config.override(packing=True), env).update)
+        ms, _ = timed(packed, state.params, state.target_params, state.opt_state, batch, jax.random.key(2), progress)
+        size = min(s for s in bucket_sizes(E, config.length_buckets) if s >= rows)
+        print(f"  update with packing ({rows} rows needed, {size} run of {E}): {ms:8.1f} ms")
 
 
 if __name__ == "__main__":

@@ -53,6 +53,9 @@ class ToMacVFSettings:
     # D8: False = one step on L = micro + λ·macro; True = the paper's literal pseudocode, a micro-TD step then an
     # additional λ·macro-TD step (on the updated parameters) when the batch holds a completed macro-action
     sequential_updates: bool = False
+    # the networks run on the sampled episodes packed back to back into the fewest of bucket_sizes(B, length_buckets)
+    # rows (``buffer.packing``; same losses) instead of one slot each cut to the longest (False, the reference)
+    packing: bool = False
     # weight of squared TD errors where Q_tot is above its target; 1 = plain MSE (D18), < 1 = optimistic
     # weighting (OW-QMIX's weighting without its Q*, hysteretic Q-learning): keeps the value of a joint
     # action that succeeded when partners' exploration makes it fail elsewhere
@@ -77,6 +80,9 @@ class ToMacVFSettings:
         _check_choice(owner, "buffer", self.buffer, ("mac_sjert", "mac_jert"))
         _check_choice(owner, "mixer", self.mixer, TOMACVF_MIXERS)
         _check_choice(owner, "mixer_params", self.mixer_params, ("atpg", "state"))
+        if self.packing and self.buffer == "mac_jert":
+            raise ValueError(f"{owner}: packing=True packs Mac-SJERT episode slots; buffer='mac_jert' trains on the "
+                             f"squeezed sequence, which is not packed (use length_buckets with it)")
         if self.sequential_updates and self.buffer == "mac_jert":
             raise ValueError(f"{owner}: sequential_updates=True alternates micro- and macro-TD steps, but "
                              f"buffer='mac_jert' trains one TD loss; use buffer='mac_sjert' with it")

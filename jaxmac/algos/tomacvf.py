@@ -38,7 +38,10 @@ rows with frozen macro-observations, one TD loss with the conditional target.
 The update runs on the sampled episodes cut to the shortest of ``length_buckets`` static lengths (halving from H)
 that holds the longest of them (``EpisodeSlot.prefix``, ``buckets.length_bucketed``): the networks are causal and
 every target row lies within an episode's length, so the losses are those of the full-length slots, at the cost of
-the real lengths (1 = always the full horizon, the reference path).
+the real lengths (1 = always the full horizon, the reference path). With ``packing=True`` (Mac-SJERT) the networks
+instead run on the sampled episodes packed back to back (``buffer.packing``: GRU carries reset and ATPG's attention
+restarts at every episode's first row) into the fewest of ``bucket_sizes(B, length_buckets)`` rows, and their
+outputs are unpacked to the slots before the (unchanged) losses: the same values at the cost of the *total* length.
 
 Acting (D17) is decentralised: each agent's GRU steps on its own observation stream and a
 free agent picks ε-greedily among its available macro-actions (τ = 0); the mixer is never
@@ -53,8 +56,8 @@ import jax.numpy as jnp
 from envs_jax.core import MacroEnv
 from jaxmac.acting import epsilon_greedy
 from jaxmac.algos.base import Algorithm, default_optimizer, gradient_update
-from jaxmac.buckets import length_bucketed
-from jaxmac.buffer import views
+from jaxmac.buckets import bucket_sizes, length_bucketed, run_bucketed
+from jaxmac.buffer import packing, views
 from jaxmac.buffer.episode import EpisodeSlot
 from jaxmac.config import TrainConfig
 from jaxmac.encodings import EncodingConfig
@@ -68,6 +71,7 @@ from jaxmac.networks import (
     init_agent_params,
     init_mixer_params,
     initial_carry,
+    NetInputs,
     jert_sequence,
     slot_inputs,
     take_rows,
@@ -145,6 +149,15 @@ def make_tomacvf(config: TrainConfig, env: MacroEnv) -> Algorithm:
         weights, _ = mixer.apply(params["mixer"], state, inputs)
         return q, weights
 
+    def packed_forward(params, inputs, tau, state, plan, rows):
+        """``forward`` on the episodes packed into ``rows`` rows (``buffer.packing``), unpacked to their slots."""
+        width = inputs.t.shape[-1]
+        pk = lambda x: packing.pack(x, plan, rows)  # noqa: E731
+        packed = NetInputs(obs=pk(inputs.obs), t=pk(inputs.t), prev_t=pk(inputs.prev_t), prev_mac=pk(inputs.prev_mac),
+                           prev_t_m=pk(inputs.prev_t_m), reset=packing.packed_reset(plan, rows, width))
+        q, weights = forward(params, packed, pk(tau), pk(state))
+        return packing.unpack(q, plan), weights.map_rows(lambda x: packing.unpack(x, plan))
+
     def q_tot(weights, q, actions, avail, free):
         """Q_tot of the executed joint ``actions`` at rows whose choosing agents are ``free``."""
         return mix_actions(weights, q, actions, admissible_actions(avail, free, actions))
@@ -163,12 +176,17 @@ def make_tomacvf(config: TrainConfig, env: MacroEnv) -> Algorithm:
         return {"qtran_opt_loss": masked_mean(opt**2, mask), "qtran_nopt_loss": masked_mean(nopt**2, mask)}
 
     # --- learning on Mac-SJERT ------------------------------------------------------------
-    def sjert_terms(params, target_params, batch: EpisodeSlot):
-        """Loss terms {micro_loss, macro_loss, QTRAN's (``qtran`` only)}, unweighted, and metrics."""
+    def sjert_terms(params, target_params, batch: EpisodeSlot, packed=None):
+        """Loss terms {micro_loss, macro_loss, QTRAN's (``qtran`` only)}, unweighted, and metrics; ``packed`` =
+        (plan, rows) runs the networks on the episodes packed into that many rows (same values)."""
         inputs, tau = slot_inputs(batch, obs_mode)
         state = batch.decode_state()
-        q, w = forward(params, inputs, tau, state)
-        q_tgt, w_tgt = forward(target_params, inputs, tau, state)
+        if packed is None:
+            q, w = forward(params, inputs, tau, state)
+            q_tgt, w_tgt = forward(target_params, inputs, tau, state)
+        else:
+            q, w = packed_forward(params, inputs, tau, state, *packed)
+            q_tgt, w_tgt = packed_forward(target_params, inputs, tau, state, *packed)
         q_detached = jax.lax.stop_gradient(q)
         h = batch.mac.shape[-2]
         free, avail = free_at_rows(batch.mac_done), batch.avail[:, :h]
@@ -217,13 +235,32 @@ def make_tomacvf(config: TrainConfig, env: MacroEnv) -> Algorithm:
         return weighted_sum(terms, term_weights), metrics | terms
 
     optimizer = default_optimizer(config)
-    if settings.sequential_updates:
-        update = sequential_update(terms_of, term_weights, optimizer)
+
+    def make_update(terms_fn):
+        if settings.sequential_updates:
+            return sequential_update(terms_fn, term_weights, optimizer)
+
+        def loss_fn(params, target_params, batch, key, progress):
+            terms, metrics = terms_fn(params, target_params, batch)
+            return weighted_sum(terms, term_weights), metrics | terms
+
+        return gradient_update(loss_fn, optimizer)
+
+    if settings.packing:
+        # the networks run on the sampled episodes packed into the fewest of bucket_sizes(B, length_buckets) rows
+        def update(params, target_params, opt_state, batch, key, progress):
+            plan = packing.pack_plan(batch.length, batch.config.horizon + 1)
+
+            def with_rows(rows):
+                terms_fn = lambda p, t, b: sjert_terms(p, t, b, packed=(plan, rows))  # noqa: E731
+                return make_update(terms_fn)(params, target_params, opt_state, batch, key, progress)
+
+            sizes = bucket_sizes(batch.length.shape[0], config.length_buckets)
+            return run_bucketed(with_rows, sizes, plan.rows_used)
     else:
-        update = gradient_update(loss, optimizer)
-    # on the batch's shortest prefix that holds its longest episode (the full horizon when length_buckets = 1)
-    update = length_bucketed(update, config.length_buckets, lambda batch: batch.config.horizon,
-                             lambda batch: jnp.max(batch.length))
+        # on the batch's shortest prefix that holds its longest episode (the full horizon when length_buckets = 1)
+        update = length_bucketed(make_update(terms_of), config.length_buckets, lambda batch: batch.config.horizon,
+                                 lambda batch: jnp.max(batch.length))
     return Algorithm(name="tomacvf", init_params=init_params, init_carry=init_carry, act=act, loss=loss,
                      optimizer=optimizer, update=update)
 

@@ -18,8 +18,9 @@
 
    With a single agent there is no other agent: ``ê = 0`` and ``α = 0``.
 
-A sequence is one episode from its reset (``inputs.reset`` is not read: rows after the episode's
-end only influence later rows). Shapes, ``...`` = leading batch axes::
+A sequence is one episode from its reset, or several episodes back to back (packed rows): the temporal attention
+of a row only reads the rows since the last ``inputs.reset`` (rows after an episode's end only influence later
+rows). Shapes, ``...`` = leading batch axes::
 
     out = ATPG(config).apply(params, inputs)        # inputs: NetInputs [..., T, ...]
     out.e_hat  f32[..., T, n, d]    out.alpha  f32[..., T, n, n]    out.e  f32[..., T, n, d]
@@ -112,19 +113,22 @@ def temporal_mask(length: int, window: int | None) -> np.ndarray:
 class TemporalSelfAttention(nn.Module):
     """Single-head causal self-attention over time, independently per agent (shared weights).
 
-    Call: ``tok f32[..., T, n, d] -> e f32[..., T, n, d]``.
+    Call: ``(tok f32[..., T, n, d], segment i32[..., T] | None) -> e f32[..., T, n, d]``; with ``segment`` a row
+    attends only to rows of its own segment (the episode it belongs to in a packed row).
     """
 
     embed: int
     window: int | None = None
 
     @nn.compact
-    def __call__(self, tok):
+    def __call__(self, tok, segment=None):
         d = self.embed
         x = jnp.swapaxes(tok, -2, -3)  # [..., n, T, d]: plain batched matmuls (faster on CPU than einsum)
         q, k, v = (nn.Dense(d, use_bias=False, name=name)(x) for name in ("query", "key", "value"))
         logits = (q @ jnp.swapaxes(k, -1, -2)) / np.sqrt(d)  # [..., n, T, T]
         mask = temporal_mask(x.shape[-2], self.window)
+        if segment is not None:
+            mask = mask & (segment[..., None, :, None] == segment[..., None, None, :])  # [..., 1, T, T]
         logits = jnp.where(mask, logits, -jnp.inf)  # the diagonal is always allowed: no empty row
         return jnp.swapaxes(jax.nn.softmax(logits, axis=-1) @ v, -2, -3)
 
@@ -162,6 +166,7 @@ class ATPG(nn.Module):
         validate_inputs(inputs, cfg.num_agents, cfg.obs_dim, "ATPG")
         x = token_features(cfg, inputs)
         tok = nn.Dense(cfg.embed, name="token_out")(nn.relu(nn.Dense(cfg.token_hidden, name="token_hidden")(x)))
-        e = TemporalSelfAttention(cfg.embed, cfg.attn_window, name="temporal")(tok)
+        segment = jnp.cumsum(inputs.reset.astype(jnp.int32), axis=-1)  # episode index within the sequence
+        e = TemporalSelfAttention(cfg.embed, cfg.attn_window, name="temporal")(tok, segment)
         e_hat, alpha = AgentAttention(cfg.embed, cfg.delta, name="agents")(e)
         return ATPGOutput(e_hat=e_hat, alpha=alpha, e=e)
