@@ -30,7 +30,8 @@ def main(argv=None) -> None:
     p.add_argument("--repeats", type=int, default=5)
     p.add_argument("--set", dest="assignments", action="append", default=[], metavar="KEY=VALUE")
     p.add_argument("--run", default=None, metavar="RUN_DIR",
-                   help="ToMacVF: sample the batch from this run's ring (its config replaces --scenario/--set)")
+                   help="ToMacVF: sample the batch from this run's ring (its config, with --set applied, replaces "
+                        "--scenario)")
     args = p.parse_args(argv)
 
     import jax
@@ -49,7 +50,9 @@ def main(argv=None) -> None:
         from jaxmac.run import load_run
 
         trainer, run_state, _, _ = load_run(args.run)
-        config, env, algorithm = trainer.config, trainer.env, trainer.algorithm
+        env = trainer.env
+        config = trainer.config.override_strings(args.assignments)  # e.g. batch_size; not the networks' sizes
+        algorithm = make_algorithm(config, env)
         state = jax.tree_util.tree_map(lambda x: x[0], run_state)
         args.scenario, args.algorithm = config.scenario, config.algorithm
     else:
