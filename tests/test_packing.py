@@ -42,11 +42,11 @@ def test_the_plan_packs_every_episode_without_overlap_and_unpack_inverts_pack(le
     assert plan.rows_used <= -(-2 * int((lengths + 1).sum()) // WIDTH) + 1
     x = jnp.asarray(np.random.default_rng(b).normal(size=(b, WIDTH, 3)), jnp.float32)
     for rows in (int(plan.rows_used), b):
-        back = np.asarray(packing.unpack(packing.pack(x, plan, rows), plan))
+        back = np.asarray(packing.unpack(packing.pack(x, packing.packed_layout(plan, rows, WIDTH)), plan))
         for e in range(b):
             np.testing.assert_array_equal(back[e, :lengths[e] + 1], np.asarray(x[e, :lengths[e] + 1]))
             assert (back[e, lengths[e] + 1:] == 0).all()
-    reset = np.asarray(packing.packed_reset(plan, b, WIDTH))
+    reset = np.asarray(packing.packed_layout(plan, b, WIDTH).reset)
     starts = {(int(plan.row[e]), int(plan.offset[e])) for e in range(b)}
     assert all(reset[r, c] for r, c in starts)
     assert reset[used == 0].all() and not any(reset[r, c] for r, c in zip(*np.nonzero(used)) if (r, c) not in starts)
@@ -85,9 +85,10 @@ def test_networks_on_packed_rows_equal_the_networks_on_each_slot(scenario, windo
     plan = _plan(slots.length, 17)
     rows = int(plan.rows_used)
     assert rows < 5  # several episodes share a row
-    pk = lambda x: packing.pack(x, plan, rows)  # noqa: E731
+    layout = packing.packed_layout(plan, rows, 17)
+    pk = lambda x: packing.pack(x, layout)  # noqa: E731
     packed = NetInputs(obs=pk(inputs.obs), t=pk(inputs.t), prev_t=pk(inputs.prev_t), prev_mac=pk(inputs.prev_mac),
-                       prev_t_m=pk(inputs.prev_t_m), reset=packing.packed_reset(plan, rows, 17))
+                       prev_t_m=pk(inputs.prev_t_m), reset=layout.reset)
     q_ref, w_ref = jax.jit(forward)(inputs, tau, state)
     q_pk, w_pk = jax.jit(forward)(packed, pk(tau), pk(state))
     q_back = packing.unpack(q_pk, plan)

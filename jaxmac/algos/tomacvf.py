@@ -151,10 +151,10 @@ def make_tomacvf(config: TrainConfig, env: MacroEnv) -> Algorithm:
 
     def packed_forward(params, inputs, tau, state, plan, rows):
         """``forward`` on the episodes packed into ``rows`` rows (``buffer.packing``), unpacked to their slots."""
-        width = inputs.t.shape[-1]
-        pk = lambda x: packing.pack(x, plan, rows)  # noqa: E731
+        layout = packing.packed_layout(plan, rows, inputs.t.shape[-1])
+        pk = lambda x: packing.pack(x, layout)  # noqa: E731
         packed = NetInputs(obs=pk(inputs.obs), t=pk(inputs.t), prev_t=pk(inputs.prev_t), prev_mac=pk(inputs.prev_mac),
-                           prev_t_m=pk(inputs.prev_t_m), reset=packing.packed_reset(plan, rows, width))
+                           prev_t_m=pk(inputs.prev_t_m), reset=layout.reset)
         q, weights = forward(params, packed, pk(tau), pk(state))
         return packing.unpack(q, plan), weights.map_rows(lambda x: packing.unpack(x, plan))
 
@@ -229,22 +229,21 @@ def make_tomacvf(config: TrainConfig, env: MacroEnv) -> Algorithm:
     term_weights = {"micro_loss": 1.0, "macro_loss": lam, "qtran_opt_loss": settings.qtran_opt_weight,
                     "qtran_nopt_loss": settings.qtran_nopt_weight}
 
-    def loss(params, target_params, batch: EpisodeSlot, key, progress):
-        del key, progress
-        terms, metrics = terms_of(params, target_params, batch)
-        return weighted_sum(terms, term_weights), metrics | terms
+    def loss_of(terms_fn):
+        def loss(params, target_params, batch: EpisodeSlot, key, progress):
+            del key, progress
+            terms, metrics = terms_fn(params, target_params, batch)
+            return weighted_sum(terms, term_weights), metrics | terms
 
+        return loss
+
+    loss = loss_of(terms_of)
     optimizer = default_optimizer(config)
 
     def make_update(terms_fn):
         if settings.sequential_updates:
             return sequential_update(terms_fn, term_weights, optimizer)
-
-        def loss_fn(params, target_params, batch, key, progress):
-            terms, metrics = terms_fn(params, target_params, batch)
-            return weighted_sum(terms, term_weights), metrics | terms
-
-        return gradient_update(loss_fn, optimizer)
+        return gradient_update(loss_of(terms_fn), optimizer)
 
     if settings.packing:
         # the networks run on the sampled episodes packed into the fewest of bucket_sizes(B, length_buckets) rows

@@ -7,9 +7,10 @@ not depend on how many packed rows are then materialised: any ``P ≥ plan.rows_
 occupies are padding and each starts its own episode (``reset``), so nothing real reads them.
 
     plan = pack_plan(lengths, width=T)                    # lengths i32[B]
-    packed = pack(x, plan, P)                             # x [B, T, ...] -> [P, T, ...]
+    layout = packed_layout(plan, P, T)                    # where every packed position reads from (once per P)
+    packed = pack(x, layout)                              # x [B, T, ...] -> [P, T, ...]
     x_back = unpack(packed, plan)                         # [P, T, ...] -> [B, T, ...] (rows > L are zeros)
-    reset = packed_reset(plan, P, T)                      # bool[P, T]: the first row of every episode, and padding
+    reset = layout.reset                                  # bool[P, T]: the first row of every episode, and padding
 
 Sequence models that reset their state at ``reset`` (the agents' GRUs) and attend only within the rows since the last
 reset (ATPG) compute on a packed row exactly what they compute on each episode's own slot.
@@ -49,8 +50,22 @@ def pack_plan(lengths: chex.Array, width: int) -> PackPlan:
     return PackPlan(row=row, offset=offset, need=need, rows_used=jnp.max(row) + 1)
 
 
-def _sources(plan: PackPlan, num_rows: int, width: int):
-    """For every packed position: (episode i32[P, T], its row within the episode i32[P, T], real bool[P, T])."""
+@struct.dataclass
+class PackedLayout:
+    """For every packed position ``[P, T]``: the episode it holds, that episode's row there, and whether it is real."""
+
+    episode: chex.Array  # i32[P, T]
+    step: chex.Array  # i32[P, T]
+    real: chex.Array  # bool[P, T]
+
+    @property
+    def reset(self) -> chex.Array:
+        """bool[P, T]: positions that start an episode (its row 0) and padding positions (each its own)."""
+        return (self.step == 0) | ~self.real
+
+
+def packed_layout(plan: PackPlan, num_rows: int, width: int) -> PackedLayout:
+    """The ``num_rows ≥ plan.rows_used`` packed rows of ``width`` positions that ``plan`` fills."""
     b = plan.row.shape[0]
     t = jnp.arange(width, dtype=jnp.int32)
     rows = jnp.broadcast_to(plan.row[:, None], (b, width))
@@ -63,20 +78,14 @@ def _sources(plan: PackPlan, num_rows: int, width: int):
     real = episode < b
     episode = jnp.minimum(episode, b - 1)
     step = jnp.where(real, jnp.arange(width, dtype=jnp.int32)[None, :] - plan.offset[episode], 0)
-    return episode, step, real
+    return PackedLayout(episode=episode, step=step, real=real)
 
 
-def pack(x: chex.Array, plan: PackPlan, num_rows: int) -> chex.Array:
-    """``x`` [B, T, ...] -> [P, T, ...] (``P = num_rows ≥ plan.rows_used``); padding positions hold zeros."""
-    episode, step, real = _sources(plan, num_rows, x.shape[1])
-    out = x[episode, step]
+def pack(x: chex.Array, layout: PackedLayout) -> chex.Array:
+    """``x`` [B, T, ...] -> [P, T, ...]; padding positions hold zeros."""
+    out = x[layout.episode, layout.step]
+    real = layout.real
     return jnp.where(real.reshape(real.shape + (1,) * (x.ndim - 2)), out, jnp.zeros((), x.dtype))
-
-
-def packed_reset(plan: PackPlan, num_rows: int, width: int) -> chex.Array:
-    """bool[P, T]: positions that start an episode (its row 0) and padding positions (each its own)."""
-    _, step, real = _sources(plan, num_rows, width)
-    return (step == 0) | ~real
 
 
 def unpack(y: chex.Array, plan: PackPlan) -> chex.Array:
