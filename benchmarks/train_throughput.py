@@ -10,6 +10,14 @@ gradient steps run). Printed: training episodes/s and env steps/s per seed and i
 per CPU-second, and the ratio to the original implementation's recorded speed per CPU-second of
 all its processes (BASELINES.md §4, measured on this machine kind): the same learner where the
 original has it, Mac-IAICC (the fastest original) for ToMacVF.
+
+    python benchmarks/train_throughput.py --compare [--algorithm tomacvf] [--scenario S ...] [--from-run RUN ...]
+
+``--compare`` times, for each scenario, the reference path (the update always on the full horizon: no length buckets,
+no packing) and the new path (the scenario's length buckets, and packing for ToMacVF) one after the other, each in
+its own process on one seed, and prints episodes per CPU-second of both and their ratio. Fresh parameters (ε near
+its start, the longest episodes) unless ``--from-run`` names, per scenario, a run folder whose newest checkpoint
+(its first seed: trained parameters, replay ring and ε) both paths continue from.
 """
 
 from __future__ import annotations
@@ -33,8 +41,15 @@ ORIGINAL = {
 }
 
 
-def measure(algorithm: str, scenario: str, seeds: int, seed_offset: int, chunks: int, assignments: list[str]) -> dict:
-    """Compile and time the trainer in this process (one worker)."""
+# The two paths of --compare: the update on the full horizon, and on the batch's real lengths.
+REFERENCE_PATH = {"tomacvf": ["length_buckets=1", "packing=false"]}
+NEW_PATH = {"tomacvf": ["packing=true"]}
+
+
+def measure(algorithm: str, scenario: str, seeds: int, seed_offset: int, chunks: int, assignments: list[str],
+            run_dir: str | None = None) -> dict:
+    """Compile and time the trainer in this process (one worker); with ``run_dir``, continue from that run's newest
+    checkpoint (its first ``seeds`` seeds; ``algorithm``, ``scenario`` and ``seed_offset`` are then the run's)."""
     import jax
     import jax.numpy as jnp
     import numpy as np
@@ -43,16 +58,30 @@ def measure(algorithm: str, scenario: str, seeds: int, seed_offset: int, chunks:
     from jaxmac.config import make_env, scenario_config
     from jaxmac.trainer import make_train
 
-    config = scenario_config(scenario, algorithm).override_strings(assignments)
+    if run_dir is None:
+        config = scenario_config(scenario, algorithm).override_strings(assignments)
+        rounds_per_chunk = None
+    else:
+        from jaxmac.run import load_run
+
+        run_trainer, run_state, _, _ = load_run(run_dir)
+        config = run_trainer.config.override_strings(assignments)
+        if (config.scenario, config.algorithm) != (scenario, algorithm):
+            raise SystemExit(f"{run_dir} is a run of {config.algorithm} on {config.scenario}, not {algorithm} on "
+                             f"{scenario}")
+        rounds_per_chunk = run_trainer.rounds_per_chunk
     env = make_env(config)
-    trainer = make_train(config, env, make_algorithm(config, env))
-    keys = jax.vmap(jax.random.key)(jnp.arange(seed_offset, seed_offset + seeds))
-    state = jax.jit(jax.vmap(trainer.init))(keys)
+    trainer = make_train(config, env, make_algorithm(config, env), rounds_per_chunk)
+    if run_dir is None:
+        keys = jax.vmap(jax.random.key)(jnp.arange(seed_offset, seed_offset + seeds))
+        state = jax.jit(jax.vmap(trainer.init))(keys)
+    else:
+        state = jax.tree_util.tree_map(lambda x: x[:seeds], run_state)
     t0 = time.perf_counter()
     chunk = jax.jit(trainer.seeds_chunk, donate_argnums=0).lower(state).compile()
     compile_s = time.perf_counter() - t0
     needed = config.start_train_episodes or config.batch_size
-    warm = max(1, -(-needed // (config.num_envs * trainer.rounds_per_chunk)) + 1)
+    warm = 1 if run_dir else max(1, -(-needed // (config.num_envs * trainer.rounds_per_chunk)) + 1)
     for _ in range(warm):  # fill the ring so that gradient steps really run
         state, _ = chunk(state)
     episodes = steps = 0
@@ -67,12 +96,12 @@ def measure(algorithm: str, scenario: str, seeds: int, seed_offset: int, chunks:
 
 
 def run_workers(algorithm: str, scenario: str, seeds: int, workers: int, chunks: int,
-                assignments: list[str]) -> list[dict]:
+                assignments: list[str], run_dir: str | None = None) -> list[dict]:
     """``workers`` concurrent processes, each measuring its share of the seeds."""
     share = [seeds // workers + (k < seeds % workers) for k in range(workers)]
     offsets = [sum(share[:k]) for k in range(workers)]
     procs = [subprocess.Popen([sys.executable, __file__, "--child", algorithm, scenario, str(s), str(o), str(chunks),
-                              json.dumps(assignments)],
+                              json.dumps(assignments), run_dir or ""],
                               stdout=subprocess.PIPE, text=True) for s, o in zip(share, offsets) if s > 0]
     out = []
     for p in procs:
@@ -87,13 +116,19 @@ def main(argv=None) -> None:
     if argv is None and len(sys.argv) > 1 and sys.argv[1] == "--child":
         algorithm, scenario = sys.argv[2], sys.argv[3]
         seeds, offset, chunks = int(sys.argv[4]), int(sys.argv[5]), int(sys.argv[6])
-        print(json.dumps(measure(algorithm, scenario, seeds, offset, chunks, json.loads(sys.argv[7]))))
+        print(json.dumps(measure(algorithm, scenario, seeds, offset, chunks, json.loads(sys.argv[7]),
+                                 sys.argv[8] or None)))
         return
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     from jaxmac.algos import REGISTRY
 
     p.add_argument("--algorithm", default="tomacvf", choices=list(REGISTRY))
-    p.add_argument("--scenario", default="boxpushing-6x6")
+    p.add_argument("--scenario", nargs="+", default=["boxpushing-6x6"],
+                   help="one scenario (several with --compare)")
+    p.add_argument("--compare", action="store_true",
+                   help="the reference path (full horizon) against the new path (real lengths), one seed each")
+    p.add_argument("--from-run", nargs="+", default=None, metavar="RUN_DIR",
+                   help="with --compare: per scenario, a run folder whose newest checkpoint both paths continue from")
     p.add_argument("--seeds", type=int, nargs="+", default=[1, 4, 8])
     p.add_argument("--workers", type=int, nargs="+", default=[1, 2])
     p.add_argument("--chunks", type=int, default=3, help="timed chunks per worker (after compile and warm-up)")
@@ -102,7 +137,14 @@ def main(argv=None) -> None:
     args = p.parse_args(argv)
     from jaxmac.config import scenario_config
 
-    scenario_config(args.scenario, args.algorithm).override_strings(args.assignments)  # bad values fail here
+    for scenario in args.scenario:
+        scenario_config(scenario, args.algorithm).override_strings(args.assignments)  # bad values fail here
+    if args.compare:
+        compare(args)
+        return
+    if len(args.scenario) != 1 or args.from_run:
+        p.error("several scenarios and --from-run go with --compare only")
+    args.scenario = args.scenario[0]
     ref = ORIGINAL.get(args.algorithm, {}).get(args.scenario)
     setting = ", ".join(args.assignments) or "the scenario's configuration"
     print(f"{args.scenario}: {args.algorithm}, {setting}; rates over the timed chunks (compile apart)")
@@ -122,6 +164,30 @@ def main(argv=None) -> None:
             if ref:
                 line += f"  {episodes / cpu / ref[0]:.2f}x ({ref[0]} for the original {ref[2]})"
             print(line, flush=True)
+
+
+def compare(args) -> None:
+    """The reference path against the new path per scenario (see the module docstring)."""
+    if args.algorithm not in NEW_PATH:
+        raise SystemExit(f"--compare: no new path for algorithm={args.algorithm!r}; algorithms with one: "
+                         f"{list(NEW_PATH)}")
+    runs = args.from_run or [None] * len(args.scenario)
+    if len(runs) != len(args.scenario):
+        raise SystemExit(f"--from-run names {len(runs)} runs for {len(args.scenario)} scenarios: give one per scenario")
+    seeds = args.seeds[0] if args.seeds != [1, 4, 8] else 1
+    print(f"{args.algorithm}: reference path ({' '.join(REFERENCE_PATH[args.algorithm])}) against the new path "
+          f"({' '.join(NEW_PATH[args.algorithm])}); {seeds} seed(s), {args.chunks} timed chunks each, one process at a "
+          f"time; extra settings: {' '.join(args.assignments) or 'none'}")
+    print(f"{'scenario':<16} {'from':<10} {'mean length':>11} {'ref ep/CPU-s':>12} {'new ep/CPU-s':>12} {'new/ref':>8}")
+    for scenario, run_dir in zip(args.scenario, runs):
+        rates, lengths = [], []
+        for path in (REFERENCE_PATH, NEW_PATH):
+            (res,) = run_workers(args.algorithm, scenario, seeds, 1, args.chunks,
+                                 args.assignments + path[args.algorithm], run_dir)
+            rates.append(res["episodes"] / res["cpu_s"])
+            lengths.append(res["env_steps"] / res["episodes"])
+        print(f"{scenario:<16} {'fresh' if run_dir is None else 'its run':<10} {sum(lengths) / 2:>11.1f} "
+              f"{rates[0]:>12.2f} {rates[1]:>12.2f} {rates[1] / rates[0]:>7.2f}x", flush=True)
 
 
 if __name__ == "__main__":

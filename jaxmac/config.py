@@ -48,6 +48,7 @@ class TrainConfig:
     eval_every_episodes: int = 100  # D15
     eval_episodes: int = 10  # D15
     horizon: int = 0  # env horizon override for smoke runs; 0 = the scenario's own
+    discount: float = 0.0  # env discount γ override (learning and reported returns); 0 = the scenario's own (D12)
     # which episodes a round trains on and an evaluation averages: "whole" = num_envs (eval_episodes) episodes run
     # to their end; "first_finished" = the MacroMARL actor-critic runners' protocol, the first episodes to finish
     # among num_envs auto-resetting envs (short episodes over-represented; jaxmac.collect)
@@ -88,6 +89,8 @@ class TrainConfig:
             raise ValueError(f"length_buckets={self.length_buckets} is not supported by algorithm={self.algorithm!r} "
                              f"(it always runs the full length: use 1); algorithms with length buckets: "
                              f"{[name for name, entry in REGISTRY.items() if entry.length_buckets]}")
+        if not 0.0 <= self.discount <= 1.0:
+            raise ValueError(f"discount={self.discount!r} must be in (0, 1] (or 0 = the scenario's own)")
         if not 0.0 < self.lr < 1.0:
             raise ValueError(f"lr={self.lr!r} must be in (0, 1)")
         if not 0.0 <= self.eps_end <= self.eps_start <= 1.0:
@@ -205,10 +208,12 @@ def _check_type(key: str, value: Any, expected: Any) -> None:
 
 
 def make_env(config: TrainConfig):
-    """The scenario's env (with the ``horizon`` override if set)."""
+    """The scenario's env (with the ``horizon`` and ``discount`` overrides if set)."""
     import envs_jax
 
     overrides = {"horizon": config.horizon} if config.horizon else {}
+    if config.discount:
+        overrides["discount"] = config.discount
     return envs_jax.make(config.scenario, **overrides)
 
 

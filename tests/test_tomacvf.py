@@ -226,6 +226,21 @@ def test_config_errors_name_the_value():
         scenario_config("boxpushing-7x7")
 
 
+@pytest.mark.parametrize("scenario,default", [("boxpushing-6x6", 0.98), ("overcooked-A", 0.99), ("warehouse-A", 1.0)])
+def test_discount_override_reaches_the_env_and_the_replay_slots(scenario, default):
+    from jaxmac.algos import make_algorithm
+    from jaxmac.config import make_env
+    from jaxmac.trainer import make_train
+
+    assert make_env(scenario_config(scenario, tiny=True)).spec.discount == default
+    config = scenario_config(scenario, tiny=True).override_strings(["discount=0.9"])
+    env = make_env(config)
+    assert env.spec.discount == 0.9
+    assert make_train(config, env, make_algorithm(config, env)).slot_config.discount == 0.9
+    with pytest.raises(ValueError, match=r"discount=1.5 must be in \(0, 1\]"):
+        TINY.override(discount=1.5)
+
+
 def test_overestimate_weight_downweights_only_positive_td_errors():
     from jaxmac.losses import td_mse
 

@@ -300,6 +300,8 @@ def test_render_shows_positions_staging_baskets_and_humans(env_e):
         ("warehouse-A", {"horizn": 50}, "valid overrides"),
         ("warehouse-A", {"horizon": "200"}, "must be of type int"),
         ("warehouse-A", {"horizon": 0}, "horizon=0"),
+        ("warehouse-A", {"discount": 1.5}, r"discount=1.5 must be in \(0, 1\]"),
+        ("warehouse-A", {"discount": 0.0}, r"discount=0.0 must be in \(0, 1\]"),
         ("warehouse-A", {"fetch_duration_noise": 1}, "must be of type bool"),
         ("warehouse-A", {"move_noise_std": -0.1}, "move_noise_std"),
         ("warehouse-A", {"n_each_obj": 0}, "n_each_obj"),
@@ -316,8 +318,11 @@ def test_make_rejects_bad_input(name, overrides, needle):
 def test_overrides_are_applied():
     with pytest.raises(ValueError, match="valid variants"):
         make_warehouse("F")
-    env = envs_jax.make("warehouse-A", horizon=150, human_durations=[[18] * 4, [18] * 4], delay_penalty=0.0)
+    assert envs_jax.make("warehouse-A").spec.discount == 1.0  # every original script's γ
+    env = envs_jax.make("warehouse-A", horizon=150, human_durations=[[18] * 4, [18] * 4], delay_penalty=0.0,
+                        discount=0.99)
     assert env.spec.horizon == 150 and env.config.human_durations == ((18,) * 4,) * 2
+    assert env.spec.discount == 0.99
     state, _ = jax.jit(env.reset)(jax.random.key(0))
     assert np.asarray(state.core.h_time).tolist() == [18, 18]
 

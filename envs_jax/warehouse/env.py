@@ -96,7 +96,7 @@ class WarehouseEnv(MacroEnv[WarehouseCore]):
             obs_sizes=(V.robot_obs_size(n_h),) * n_t + (V.fetch_obs_size(n_t),),
             state_dim=V.state_size(n_h, n_t),
             horizon=config.horizon,
-            discount=1.0,
+            discount=config.discount,
             agent_names=tuple(f"robot{i}" for i in range(n_t)) + ("fetch",),
         )
         self.graph = g = build_motion_graph(layout)

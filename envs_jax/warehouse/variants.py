@@ -81,6 +81,7 @@ class WarehouseConfig:
     done_at_horizon: bool = False  # E: the env itself terminates at ``horizon`` (§12.9)
     arrival_exit_on_go_tr: bool = False  # E: arrival early exit hits Go-TR, not Get-Tool (§12.1)
     check_every_pass: bool = False  # the reference checks a pass at its start only for robots 0, 1
+    discount: float = 1.0  # γ of the learners and of the reported returns (every original script: 1.0)
 
     def __post_init__(self):
         # Lists are accepted for convenience; the config must stay hashable (envs are static).
@@ -93,6 +94,8 @@ class WarehouseConfig:
         n_h = layout.n_humans
         if self.horizon < 1:
             raise ValueError(f"{name}: horizon={self.horizon} must be a positive int")
+        if not 0.0 < self.discount <= 1.0:
+            raise ValueError(f"{name}: discount={self.discount!r} must be in (0, 1]")
         d = self.human_durations
         ok = (
             isinstance(d, tuple)
