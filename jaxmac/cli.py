@@ -49,9 +49,14 @@ def cmd_rollout(args) -> int:
 
 def cmd_train(args) -> int:
     from jaxmac.config import preset_config, scenario_config
-    from jaxmac.run import default_out_dir, enable_compilation_cache, resume_run, train_run
+    from jaxmac.run import default_out_dir, enable_compilation_cache, resume_run, train_run, use_host_devices
     from jaxmac.workers import is_worker_run, resume_workers, train_workers
 
+    devices = 1 if args.devices is None else args.devices
+    if devices > 1 and args.workers not in (None, 1):
+        raise ValueError(f"--devices {devices} and --workers {args.workers}: choose one way to split the seeds "
+                         "(--devices: one process, seeds sharded over devices; --workers: several processes)")
+    use_host_devices(devices)  # before JAX starts: on a CPU, split the host into that many devices
     enable_compilation_cache()
     if args.resume:
         import os
@@ -69,7 +74,7 @@ def cmd_train(args) -> int:
             summary = resume_workers(args.resume, progress=not args.no_progress, episodes=args.episodes)
         else:
             summary = resume_run(args.resume, progress=not args.no_progress, episodes=args.episodes,
-                                 assignments=args.set)
+                                 assignments=args.set, devices=devices)
         out = args.resume
     else:
         if args.preset is not None:
@@ -93,7 +98,7 @@ def cmd_train(args) -> int:
         if workers != 1:  # train_workers validates the count
             summary = train_workers(config, seeds, out, workers, progress=not args.no_progress)
         else:
-            summary = train_run(config, seeds, out, progress=not args.no_progress)
+            summary = train_run(config, seeds, out, progress=not args.no_progress, devices=devices)
     if summary is not None:
         print(f"run folder: {out}")
         print(f"final greedy return ({summary['scenario']}, gamma={summary['discount']}): "
@@ -144,6 +149,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--resume", default=None, metavar="RUN_DIR", help="continue a killed run (with --episodes N: train a run further, to N episodes per seed)")
     p.add_argument("--workers", type=int, default=None,
                    help="processes, each vmapping its share of the seeds (one JAX process uses about one core; default 1)")
+    p.add_argument("--devices", type=int, default=None,
+                   help="devices to shard the seeds over, in one process (jax.sharding; on a CPU the host is split "
+                        "into that many devices; default 1); the seeds must be a multiple of it")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_train)
 
@@ -156,8 +164,9 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    if any(v is not None and v < 1 for v in (getattr(args, "episodes", None), getattr(args, "seeds", None))):
-        print("jaxmac: --episodes and --seeds must be >= 1", file=sys.stderr)
+    if any(v is not None and v < 1 for v in (getattr(args, "episodes", None), getattr(args, "seeds", None),
+                                             getattr(args, "devices", None))):
+        print("jaxmac: --episodes, --seeds and --devices must be >= 1", file=sys.stderr)
         return 2
     try:
         return args.func(args)

@@ -49,6 +49,33 @@ def enable_compilation_cache(path: str | None = None) -> None:
     jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
 
 
+def use_host_devices(count: int) -> None:
+    """Let a CPU-only JAX split into ``count`` host devices (one per core) so that seeds can be sharded over them.
+    Must run before JAX starts its backend (the first computation); on an accelerator it changes nothing."""
+    if count > 1:
+        flags = os.environ.get("XLA_FLAGS", "")
+        os.environ["XLA_FLAGS"] = f"{flags} --xla_force_host_platform_device_count={count}".strip()
+
+
+def seed_sharding(seeds: int, devices: int):
+    """The ``NamedSharding`` that splits a state's leading seed axis over the first ``devices`` devices (a mesh
+    axis named ``SEED_AXIS``), or None for one device. One jitted program then runs every device's seeds (the same
+    command on one GPU, several GPUs, or ``jax.distributed`` hosts)."""
+    if isinstance(devices, bool) or not isinstance(devices, int) or devices < 1:
+        raise ValueError(f"devices={devices!r} must be a positive integer")
+    if devices == 1:
+        return None
+    available = jax.devices()
+    if devices > len(available):
+        raise ValueError(f"devices={devices}: JAX sees {len(available)} device(s) ({available[0].platform}); on a CPU "
+                         f"use `jaxmac train --devices N` (it splits the host into N devices before JAX starts)")
+    if seeds % devices:
+        raise ValueError(f"seeds={seeds} cannot be split evenly over devices={devices}: use a number of seeds that "
+                         f"is a multiple of the devices, or fewer devices")
+    mesh = jax.sharding.Mesh(np.array(available[:devices]), (SEED_AXIS,))
+    return jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec(SEED_AXIS))
+
+
 def _build(config: TrainConfig, rounds_per_chunk: int | None):
     from jaxmac.algos import make_algorithm
     from jaxmac.config import make_env
@@ -149,14 +176,17 @@ def train_run(
     checkpoint_seconds: float = 120.0,
     progress: bool = True,
     stop_after_chunks: int | None = None,
+    devices: int = 1,
 ) -> dict[str, Any] | None:
-    """Train ``seeds`` seeds (``seed_offset … seed_offset+seeds-1``) into ``out_dir``.
+    """Train ``seeds`` seeds (``seed_offset … seed_offset+seeds-1``) into ``out_dir``, their states sharded over
+    ``devices`` devices (``seed_sharding``).
 
     ``stop_after_chunks`` stops early (as if killed) after that many chunks of this call,
     checkpointing first — used by tests of resume. Returns the summary (None if stopped).
     """
     if seeds < 1:
         raise ValueError(f"seeds={seeds!r} must be >= 1")
+    sharding = seed_sharding(seeds, devices)
     os.makedirs(out_dir, exist_ok=True)
     if os.path.exists(os.path.join(out_dir, "config.json")):
         raise ValueError(f"{out_dir} already holds a run; use resume (jaxmac train --resume {out_dir}) "
@@ -167,7 +197,7 @@ def train_run(
     write_json_atomic(os.path.join(out_dir, "config.json"), meta)
     keys = jax.vmap(jax.random.key)(jnp.arange(seed_offset, seed_offset + seeds))
     state = jax.jit(jax.vmap(trainer.init))(keys)
-    return _loop(trainer, state, 0, out_dir, meta, checkpoint_seconds, progress, stop_after_chunks, 0.0)
+    return _loop(trainer, state, 0, out_dir, meta, checkpoint_seconds, progress, stop_after_chunks, 0.0, sharding)
 
 
 def load_run(out_dir: str):
@@ -228,8 +258,9 @@ def change_diverged_settings(out_dir: str, assignments: list[str]) -> None:
 
 def resume_run(out_dir: str, checkpoint_seconds: float = 120.0, progress: bool = True,
                stop_after_chunks: int | None = None, episodes: int | None = None,
-               assignments: list[str] | None = None) -> dict[str, Any] | None:
-    """Continue the run in ``out_dir`` from its newest checkpoint (or from scratch if none).
+               assignments: list[str] | None = None, devices: int = 1) -> dict[str, Any] | None:
+    """Continue the run in ``out_dir`` from its newest checkpoint (or from scratch if none), on ``devices``
+    devices (any number that divides its seeds: where the seeds run does not change the result).
 
     ``episodes`` raises its budget first (``extend_budget``), so a finished run can be trained further;
     ``assignments`` change the settings of a diverged run (``change_diverged_settings``).
@@ -239,19 +270,23 @@ def resume_run(out_dir: str, checkpoint_seconds: float = 120.0, progress: bool =
     if episodes is not None:
         extend_budget(out_dir, episodes)
     trainer, state, chunk, meta = load_run(out_dir)
+    sharding = seed_sharding(meta["seeds"], devices)
     wall = 0.0
     progress_path = os.path.join(out_dir, "progress.json")
     if chunk and os.path.exists(progress_path):
         with open(progress_path) as f:
             wall = float(json.load(f)["wall_seconds"])
     _truncate_metrics(os.path.join(out_dir, "metrics.csv"), chunk * trainer.rounds_per_chunk)
-    return _loop(trainer, state, chunk, out_dir, meta, checkpoint_seconds, progress, stop_after_chunks, wall)
+    return _loop(trainer, state, chunk, out_dir, meta, checkpoint_seconds, progress, stop_after_chunks, wall, sharding)
 
 
-def _loop(trainer, state, chunk, out_dir, meta, checkpoint_seconds, progress, stop_after_chunks, wall_before):
+def _loop(trainer, state, chunk, out_dir, meta, checkpoint_seconds, progress, stop_after_chunks, wall_before,
+          sharding=None):
     import orbax.checkpoint as ocp
     from tqdm import tqdm
 
+    if sharding is not None:
+        state = jax.device_put(state, sharding)
     config = trainer.config
     seed_ids = list(range(meta["seed_offset"], meta["seed_offset"] + meta["seeds"]))
     train_chunk = jax.jit(trainer.seeds_chunk, donate_argnums=0)

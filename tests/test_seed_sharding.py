@@ -1,0 +1,58 @@
+"""Seeds sharded over devices in one process (``jax.sharding``): the same training as on one device."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import textwrap
+
+import pytest
+
+from jaxmac.run import seed_sharding
+
+# Run in a fresh interpreter: the host must be split into 2 devices before JAX starts its backend.
+SCRIPT = textwrap.dedent("""
+    import jax, jax.numpy as jnp, numpy as np
+    from jaxmac.algos import make_algorithm
+    from jaxmac.config import make_env, scenario_config
+    from jaxmac.run import seed_sharding
+    from jaxmac.trainer import make_train
+
+    assert jax.device_count() == 2, jax.devices()
+    config = scenario_config("boxpushing-6x6", tiny=True).override(episodes=32, horizon=30)
+    env = make_env(config)
+    trainer = make_train(config, env, make_algorithm(config, env))
+    state = jax.jit(jax.vmap(trainer.init))(jax.vmap(jax.random.key)(jnp.arange(2)))
+    chunk = jax.jit(trainer.seeds_chunk)
+    sharded_state = jax.device_put(state, seed_sharding(2, 2))
+    for _ in range(2):  # two chunks: gradient steps run in the second
+        state, plain = chunk(state)
+        sharded_state, sharded = chunk(sharded_state)
+    leaf = jax.tree_util.tree_leaves(sharded_state.params)[0]
+    assert len(leaf.sharding.device_set) == 2 and leaf.addressable_shards[0].data.shape[0] == 1, leaf.sharding
+    assert int(np.asarray(plain["round_updates"]).sum()) > 0
+    for name in ("loss", "grad_norm", "train_return", "param_norm"):
+        np.testing.assert_allclose(np.asarray(sharded[name]), np.asarray(plain[name]), rtol=1e-5, atol=1e-5,
+                                   err_msg=name)
+    try:
+        seed_sharding(3, 2)
+        raise AssertionError("3 seeds over 2 devices must be refused")
+    except ValueError as err:
+        assert "seeds=3 cannot be split evenly over devices=2" in str(err)
+    print("OK")
+""")
+
+
+def test_seeds_sharded_over_two_host_devices_train_as_on_one():
+    env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=2", JAX_PLATFORMS="cpu")
+    out = subprocess.run([sys.executable, "-c", SCRIPT], env=env, capture_output=True, text=True, timeout=900)
+    assert out.returncode == 0 and out.stdout.strip().endswith("OK"), out.stderr[-3000:]
+
+
+def test_seed_sharding_refuses_what_it_cannot_do():
+    assert seed_sharding(4, 1) is None
+    with pytest.raises(ValueError, match="devices=0 must be a positive integer"):
+        seed_sharding(4, 0)
+    with pytest.raises(ValueError, match=r"devices=64: JAX sees \d+ device"):
+        seed_sharding(64, 64)
