@@ -1,9 +1,10 @@
 """Training throughput of the compiled trainer for any learner, per seed and in total.
 
     python benchmarks/train_throughput.py [--algorithm tomacvf] --scenario boxpushing-6x6 [--seeds 1 4 8]
-                                          [--workers 1 2] [--chunks 3] [--set KEY=VALUE ...]
+                                          [--workers 1 2] [--devices 2] [--chunks 3] [--set KEY=VALUE ...]
 
-For every (seeds, workers) pair, each worker process compiles ``Trainer.seeds_chunk`` over its
+For every (seeds, workers) pair, and every (seeds, devices) pair of one process whose seeds are sharded over that many
+host devices (``jax.sharding``, the way that carries to GPUs and hosts), each worker process compiles ``Trainer.seeds_chunk`` over its
 share of the seeds (compile time reported apart) and then times ``--chunks`` chunks of the
 scenario's configuration of that algorithm (warm-up chunks first fill the ring up to where
 gradient steps run). Printed: training episodes/s and env steps/s per seed and in total, wall and
@@ -24,6 +25,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import subprocess
 import sys
 import time
@@ -47,7 +49,7 @@ NEW_PATH = {"tomacvf": ["packing=true"]}
 
 
 def measure(algorithm: str, scenario: str, seeds: int, seed_offset: int, chunks: int, assignments: list[str],
-            run_dir: str | None = None) -> dict:
+            run_dir: str | None = None, devices: int = 1) -> dict:
     """Compile and time the trainer in this process (one worker); with ``run_dir``, continue from that run's newest
     checkpoint (its first ``seeds`` seeds; ``algorithm``, ``scenario`` and ``seed_offset`` are then the run's)."""
     import jax
@@ -77,6 +79,10 @@ def measure(algorithm: str, scenario: str, seeds: int, seed_offset: int, chunks:
         state = jax.jit(jax.vmap(trainer.init))(keys)
     else:
         state = jax.tree_util.tree_map(lambda x: x[:seeds], run_state)
+    if devices > 1:
+        from jaxmac.run import seed_sharding
+
+        state = jax.device_put(state, seed_sharding(seeds, devices))
     t0 = time.perf_counter()
     chunk = jax.jit(trainer.seeds_chunk, donate_argnums=0).lower(state).compile()
     compile_s = time.perf_counter() - t0
@@ -96,13 +102,17 @@ def measure(algorithm: str, scenario: str, seeds: int, seed_offset: int, chunks:
 
 
 def run_workers(algorithm: str, scenario: str, seeds: int, workers: int, chunks: int,
-                assignments: list[str], run_dir: str | None = None) -> list[dict]:
-    """``workers`` concurrent processes, each measuring its share of the seeds."""
+                assignments: list[str], run_dir: str | None = None, devices: int = 1) -> list[dict]:
+    """``workers`` concurrent processes, each measuring its share of the seeds (sharded over ``devices`` host
+    devices of its own)."""
+    env = dict(os.environ)
+    if devices > 1:
+        env["XLA_FLAGS"] = f"{env.get('XLA_FLAGS', '')} --xla_force_host_platform_device_count={devices}".strip()
     share = [seeds // workers + (k < seeds % workers) for k in range(workers)]
     offsets = [sum(share[:k]) for k in range(workers)]
     procs = [subprocess.Popen([sys.executable, __file__, "--child", algorithm, scenario, str(s), str(o), str(chunks),
-                              json.dumps(assignments), run_dir or ""],
-                              stdout=subprocess.PIPE, text=True) for s, o in zip(share, offsets) if s > 0]
+                              json.dumps(assignments), run_dir or "", str(devices)],
+                              stdout=subprocess.PIPE, text=True, env=env) for s, o in zip(share, offsets) if s > 0]
     out = []
     for p in procs:
         stdout, _ = p.communicate()
@@ -117,7 +127,7 @@ def main(argv=None) -> None:
         algorithm, scenario = sys.argv[2], sys.argv[3]
         seeds, offset, chunks = int(sys.argv[4]), int(sys.argv[5]), int(sys.argv[6])
         print(json.dumps(measure(algorithm, scenario, seeds, offset, chunks, json.loads(sys.argv[7]),
-                                 sys.argv[8] or None)))
+                                 sys.argv[8] or None, int(sys.argv[9]))))
         return
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     from jaxmac.algos import REGISTRY
@@ -131,6 +141,8 @@ def main(argv=None) -> None:
                    help="with --compare: per scenario, a run folder whose newest checkpoint both paths continue from")
     p.add_argument("--seeds", type=int, nargs="+", default=[1, 4, 8])
     p.add_argument("--workers", type=int, nargs="+", default=[1, 2])
+    p.add_argument("--devices", type=int, nargs="+", default=[1],
+                   help="host devices one process shards its seeds over (jax.sharding), against --workers processes")
     p.add_argument("--chunks", type=int, default=3, help="timed chunks per worker (after compile and warm-up)")
     p.add_argument("--set", dest="assignments", action="append", default=[], metavar="KEY=VALUE",
                    help="config override, as in `jaxmac train --set` (repeatable)")
@@ -148,18 +160,20 @@ def main(argv=None) -> None:
     ref = ORIGINAL.get(args.algorithm, {}).get(args.scenario)
     setting = ", ".join(args.assignments) or "the scenario's configuration"
     print(f"{args.scenario}: {args.algorithm}, {setting}; rates over the timed chunks (compile apart)")
-    print(f"{'seeds':>5} {'workers':>7} {'compile s':>9} {'ep/s total':>10} {'ep/s/seed':>9} {'steps/s':>9} "
+    print(f"{'seeds':>5} {'workers':>7} {'devices':>7} {'compile s':>9} {'ep/s total':>10} {'ep/s/seed':>9} {'steps/s':>9} "
           f"{'ep/CPU-s':>9}" + ("  vs original (episodes per CPU-second)" if ref else ""))
+    combos = [(w, 1) for w in args.workers] + [(1, d) for d in args.devices if d > 1]
     for seeds in args.seeds:
-        for workers in args.workers:
-            if workers > seeds:
+        for workers, devices in combos:
+            if workers > seeds or seeds % devices:
                 continue
-            res = run_workers(args.algorithm, args.scenario, seeds, workers, args.chunks, args.assignments)
+            res = run_workers(args.algorithm, args.scenario, seeds, workers, args.chunks, args.assignments,
+                              devices=devices)
             wall = max(r["wall_s"] for r in res)
             episodes = sum(r["episodes"] for r in res)
             steps = sum(r["env_steps"] for r in res)
             cpu = sum(r["cpu_s"] for r in res)
-            line = (f"{seeds:>5} {workers:>7} {max(r['compile_s'] for r in res):>9.1f} {episodes / wall:>10.1f} "
+            line = (f"{seeds:>5} {workers:>7} {devices:>7} {max(r['compile_s'] for r in res):>9.1f} {episodes / wall:>10.1f} "
                     f"{episodes / wall / seeds:>9.2f} {steps / wall:>9.0f} {episodes / cpu:>9.1f}")
             if ref:
                 line += f"  {episodes / cpu / ref[0]:.2f}x ({ref[0]} for the original {ref[2]})"

@@ -86,19 +86,20 @@ def cmd_train(args) -> int:
             config, preset = preset_config(args.preset)
             print(f"preset {args.preset}: {preset.about}")
             if args.seeds is None:
-                args.seeds = preset.seeds
+                args.seeds = (0, preset.seeds)
         else:
             config = scenario_config(args.scenario or "boxpushing-6x6", args.algorithm or "tomacvf", tiny=args.tiny)
         if args.episodes is not None:
             config = config.override(episodes=args.episodes)
         config = config.override_strings(args.set)
         out = args.out or default_out_dir(config)
-        seeds = 1 if args.seeds is None else args.seeds
+        offset, seeds = (0, 1) if args.seeds is None else args.seeds
         workers = 1 if args.workers is None else args.workers
         if workers != 1:  # train_workers validates the count
-            summary = train_workers(config, seeds, out, workers, progress=not args.no_progress)
+            summary = train_workers(config, seeds, out, workers, progress=not args.no_progress, seed_offset=offset)
         else:
-            summary = train_run(config, seeds, out, progress=not args.no_progress, devices=devices)
+            summary = train_run(config, seeds, out, seed_offset=offset, progress=not args.no_progress,
+                                devices=devices)
     if summary is not None:
         print(f"run folder: {out}")
         print(f"final greedy return ({summary['scenario']}, gamma={summary['discount']}): "
@@ -122,6 +123,21 @@ def cmd_eval(args) -> int:
     return 0
 
 
+def seed_range(text: str) -> tuple[int, int]:
+    """``--seeds`` as (first seed, count): ``"4"`` -> (0, 4), ``"4:8"`` -> (4, 4)."""
+    try:
+        if ":" in text:
+            first, end = (int(v) for v in text.split(":"))
+        else:
+            first, end = 0, int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"--seeds {text!r}: give a count N (seeds 0..N-1) or a range A:B "
+                                         "(seeds A..B-1)") from None
+    if first < 0 or end <= first:
+        raise argparse.ArgumentTypeError(f"--seeds {text!r}: need 0 <= A < B (seeds A..B-1) or N >= 1")
+    return first, end - first
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="jaxmac", description="Asynchronous macro-action MARL in JAX.")
     sub = parser.add_subparsers(dest="command", required=True)
@@ -141,7 +157,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--scenario", default=None, choices=list(SCENARIOS), help="default: boxpushing-6x6")
     p.add_argument("--algorithm", default=None, choices=list(REGISTRY),
                    help="default: tomacvf; each starts from its original script's settings for the scenario")
-    p.add_argument("--seeds", type=int, default=None, help="number of seeds (vmapped in one process; default 1)")
+    p.add_argument("--seeds", type=seed_range, default=None, metavar="N|A:B",
+                   help="N: seeds 0..N-1; A:B: seeds A..B-1, e.g. 4:8 adds four seeds to a run of --seeds 4 (vmapped "
+                        "in one process; default 1)")
     p.add_argument("--episodes", type=int, default=None, help="training episodes per seed (default: the paper's)")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="override any config value")
     p.add_argument("--tiny", action="store_true", help="tiny networks and budgets (smoke runs)")
@@ -164,9 +182,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    if any(v is not None and v < 1 for v in (getattr(args, "episodes", None), getattr(args, "seeds", None),
-                                             getattr(args, "devices", None))):
-        print("jaxmac: --episodes, --seeds and --devices must be >= 1", file=sys.stderr)
+    if any(v is not None and v < 1 for v in (getattr(args, "episodes", None), getattr(args, "devices", None))):
+        print("jaxmac: --episodes and --devices must be >= 1", file=sys.stderr)
         return 2
     try:
         return args.func(args)

@@ -37,14 +37,17 @@ def _worker_dirs(out_dir: str, workers: int) -> list[str]:
     return [os.path.join(out_dir, f"worker{k}") for k in range(workers)]
 
 
-def train_workers(config: TrainConfig, seeds: int, out_dir: str, workers: int, progress: bool = True) -> dict:
-    """Train ``seeds`` seeds in ``workers`` processes and merge the results into ``out_dir``."""
+def train_workers(config: TrainConfig, seeds: int, out_dir: str, workers: int, progress: bool = True,
+                  seed_offset: int = 0) -> dict:
+    """Train ``seeds`` seeds (from ``seed_offset``) in ``workers`` processes and merge the results into
+    ``out_dir``."""
     if os.path.exists(os.path.join(out_dir, "config.json")):
         raise ValueError(f"{out_dir} already holds a run; use --resume {out_dir} or another --out")
     os.makedirs(out_dir, exist_ok=True)
-    shares = split_seeds(seeds, workers)
+    shares = [(seed_offset + offset, count) for offset, count in split_seeds(seeds, workers)]
     write_json_atomic(os.path.join(out_dir, "config.json"),
-                      {"config": config.to_dict(), "seeds": seeds, "workers": workers, "shares": shares})
+                      {"config": config.to_dict(), "seeds": seeds, "seed_offset": seed_offset, "workers": workers,
+                       "shares": shares})
     jobs = []
     for d, (offset, count) in zip(_worker_dirs(out_dir, workers), shares):
         os.makedirs(d, exist_ok=True)
@@ -156,7 +159,8 @@ def merge(out_dir: str, jobs: list[str], wall_seconds: float) -> dict[str, Any]:
         summary[key] = [v for s in summaries for v in s[key]]
         summary[key + "_mean"] = sum(summary[key]) / len(summary[key])
     wall_seconds = max([wall_seconds] + [s["wall_seconds"] for s in summaries if "wall_seconds" in s])
-    summary.update(seeds=len(summary["final_greedy_return"]), workers=len(jobs), wall_seconds=wall_seconds)
+    summary.update(seeds=len(summary["final_greedy_return"]), seed_offset=first.get("seed_offset", 0),
+                   workers=len(jobs), wall_seconds=wall_seconds)
     write_json_atomic(os.path.join(out_dir, "summary.json"), summary)
     plot_learning_curve(os.path.join(out_dir, "metrics.csv"), os.path.join(out_dir, "curve.png"),
                         f"{summary['algorithm']} on {summary['scenario']}", summary["optimal_return"],

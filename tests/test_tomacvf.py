@@ -202,6 +202,27 @@ def test_cli_resume_refuses_options_it_would_ignore(tmp_path, capsys):
     assert "--set cannot change it" in capsys.readouterr().err
 
 
+def test_cli_seeds_are_a_count_or_a_range_and_reach_the_run(monkeypatch, capsys):
+    import argparse
+
+    import jaxmac.run
+    from jaxmac.cli import main, seed_range
+
+    assert seed_range("4") == (0, 4) and seed_range("4:8") == (4, 4) and seed_range("0:1") == (0, 1)
+    for bad in ("0", "8:4", "4:4", "-1:3", "a:b", "2.5"):
+        with pytest.raises(argparse.ArgumentTypeError, match="--seeds"):
+            seed_range(bad)
+    calls = []
+    monkeypatch.setattr(jaxmac.run, "train_run", lambda config, seeds, out, **kw: calls.append((seeds, kw)))
+    assert main(["train", "--tiny", "--seeds", "4:8", "--out", "unused", "--no-progress"]) == 0
+    assert calls[0][0] == 4 and calls[0][1]["seed_offset"] == 4
+    assert main(["train", "--tiny", "--seeds", "3", "--out", "unused", "--no-progress"]) == 0
+    assert calls[1][0] == 3 and calls[1][1]["seed_offset"] == 0
+    with pytest.raises(SystemExit):
+        main(["train", "--seeds", "5:2"])
+    assert "need 0 <= A < B" in capsys.readouterr().err
+
+
 def test_presets_are_the_scenario_settings_with_their_overrides_and_refuse_what_they_fix(capsys):
     from jaxmac.cli import main
     from jaxmac.config import PRESETS, preset_config
