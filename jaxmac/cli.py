@@ -11,6 +11,7 @@
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import time
 
@@ -138,6 +139,25 @@ def seed_range(text: str) -> tuple[int, int]:
     return first, end - first
 
 
+def cmd_sweep(args) -> int:
+    from jaxmac.run import enable_compilation_cache, use_host_devices
+    from jaxmac.sweep import PROTOCOLS, cell_status, plan, run_sweep
+
+    devices = 1 if args.devices is None else args.devices
+    use_host_devices(devices)  # before JAX starts
+    cells = plan(args.experiment, args.protocol, args.seeds, args.only)
+    out = args.out or os.path.join("experiments", "sweeps", args.protocol)
+    print(f"sweep {args.experiment}, protocol {args.protocol} ({PROTOCOLS[args.protocol].about}): {len(cells)} cells "
+          f"into {out}")
+    if args.dry_run:
+        for cell in cells:
+            print(f"  {cell.path}: {cell.episodes} episodes per seed, {cell_status(out, cell)}")
+        return 0
+    enable_compilation_cache()
+    run_sweep(cells, out, devices=devices, progress=not args.no_progress)
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="jaxmac", description="Asynchronous macro-action MARL in JAX.")
     sub = parser.add_subparsers(dest="command", required=True)
@@ -172,6 +192,23 @@ def build_parser() -> argparse.ArgumentParser:
                         "into that many devices; default 1); the seeds must be a multiple of it")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_train)
+
+    from jaxmac.sweep import EXPERIMENTS, PROTOCOLS
+
+    p = sub.add_parser("sweep", help="run one of the paper's experiments: every (method, scenario) cell x seeds into "
+                                     "one folder, skipping finished cells and resuming interrupted ones")
+    p.add_argument("experiment", choices=list(EXPERIMENTS))
+    p.add_argument("--protocol", default="cpu", choices=list(PROTOCOLS),
+                   help="; ".join(f"{name}: {proto.about}" for name, proto in PROTOCOLS.items()))
+    p.add_argument("--seeds", type=seed_range, default=None, metavar="N|A:B",
+                   help="seeds of every cell instead of the protocol's count (A:B adds seeds A..B-1)")
+    p.add_argument("--out", default=None, help="sweep folder (default: experiments/sweeps/PROTOCOL, shared by the "
+                                               "experiments so that a cell two of them need runs once)")
+    p.add_argument("--only", default=None, metavar="TEXT", help="only the cells whose path contains TEXT")
+    p.add_argument("--devices", type=int, default=None, help="devices to shard each cell's seeds over (as train)")
+    p.add_argument("--dry-run", action="store_true", help="list the cells and their status, run nothing")
+    p.add_argument("--no-progress", action="store_true", help="no progress bars")
+    p.set_defaults(func=cmd_sweep)
 
     p = sub.add_parser("eval", help="render a greedy episode of a trained run (text and a PNG strip)")
     p.add_argument("run_dir")

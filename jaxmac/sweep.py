@@ -1,0 +1,181 @@
+"""The paper's experiments as sweeps: named sets of (method, scenario) cells × seeds, run into one folder.
+
+    jaxmac sweep EXPERIMENT [--protocol cpu|paper] [--out DIR] [--seeds N|A:B] [--devices N] [--dry-run]
+
+A *cell* is one ordinary run folder (``jaxmac train``'s): a method (a learner with its settings) on a scenario for a
+range of seeds. The sweep plans every cell of the experiment and protocol, skips cells already finished (their
+``summary.json`` exists), resumes cells that were interrupted (``config.json`` without a summary: resume is exact) and
+starts the others, one after another in this process, each with its seeds vmapped and sharded over ``devices``
+(``jax.sharding``: the same command uses several GPUs or hosts). Seeds are a range, so a later
+``--seeds 4:8`` adds four seeds to a sweep run with ``--seeds 4``: their cells are new folders
+(``…/seeds4-8``) that the statistics merge with the first ones.
+
+Folder layout: ``OUT/<scenario>/<method>/seeds<A>-<B>/`` (a run folder).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+from typing import Any
+
+from jaxmac.config import TrainConfig, scenario_config
+
+
+@dataclasses.dataclass(frozen=True)
+class Method:
+    """A learner with its settings, as a curve of the paper's figures is labelled."""
+
+    name: str  # folder and legend key, e.g. "tomacvf-wo-atpg"
+    algorithm: str
+    overrides: tuple[tuple[str, Any], ...] = ()
+    label: str = ""  # legend text (the paper's name)
+
+    def config(self, scenario: str, tiny: bool = False) -> TrainConfig:
+        return scenario_config(scenario, self.algorithm, tiny=tiny).override(**dict(self.overrides))
+
+
+@dataclasses.dataclass(frozen=True)
+class Cell:
+    """One run folder of a sweep."""
+
+    experiment: str
+    method: Method
+    scenario: str
+    first_seed: int
+    seeds: int
+    episodes: int
+    tiny: bool = False
+
+    @property
+    def path(self) -> str:
+        return os.path.join(self.scenario, self.method.name, f"seeds{self.first_seed}-{self.first_seed + self.seeds}")
+
+    def config(self) -> TrainConfig:
+        return self.method.config(self.scenario, self.tiny).override(episodes=self.episodes)
+
+
+TOMACVF = Method("tomacvf", "tomacvf", label="ToMacVF")
+BASELINES = (
+    Method("mac_cac", "mac_cac", label="Mac-CAC"),
+    Method("mac_iaicc", "mac_iaicc", label="Mac-IAICC"),
+    Method("mac_niacc", "mac_niacc", label="Mac-NIACC"),
+    Method("macdec_ddrqn", "macdec_ddrqn", label="Mac-Dec-MADDRQN"),
+    Method("maccen_ddrqn", "maccen_ddrqn", label="Mac-Cen-DDRQN"),
+    Method("avf", "avf", label="AVF"),
+)
+WO_ATPG = Method("tomacvf-wo-atpg", "tomacvf", (("mixer_params", "state"),), "ToMacVF w/o ATPG")
+WO_SJERT = Method("tomacvf-wo-sjert", "tomacvf", (("buffer", "mac_jert"), ("obs_mode", "macro")),
+                  "ToMacVF w/o Mac-SJERT")
+WO_BOTH = Method("tomacvf-wo-both", "tomacvf", (("mixer_params", "state"), ("buffer", "mac_jert"),
+                                                ("obs_mode", "macro")), "ToMacVF w/o ATPG and Mac-SJERT")
+# ToMacVF's own mixer is QMIX: its cells are the other experiments' ToMacVF cells
+MIXERS = (dataclasses.replace(TOMACVF, label="ToMacVF_QMIX"),) + tuple(
+    Method(f"tomacvf-{m}", "tomacvf", (("mixer", m),), f"ToMacVF_{label}")
+    for m, label in (("vdn", "VDN"), ("qplex", "QPLEX"), ("qtran", "Qtran")))
+
+BOX_PUSHING = tuple(f"boxpushing-{g}x{g}" for g in (6, 8, 10, 12, 14))
+OVERCOOKED = ("overcooked-A", "overcooked-B", "overcooked-C")
+WAREHOUSE = tuple(f"warehouse-{v}" for v in "ABCDE")
+
+# experiment -> (methods, scenarios), as the paper's figures group them
+EXPERIMENTS: dict[str, tuple[tuple[Method, ...], tuple[str, ...]]] = {
+    "bp": ((TOMACVF,) + BASELINES, BOX_PUSHING),
+    # the paper leaves the two DDRQNs out of Warehouse
+    "warehouse": ((TOMACVF,) + tuple(m for m in BASELINES if not m.name.endswith("ddrqn")), WAREHOUSE),
+    "overcooked": ((TOMACVF,) + BASELINES, OVERCOOKED),
+    "ablation": ((TOMACVF, WO_ATPG, WO_SJERT, WO_BOTH), ("overcooked-B", "warehouse-E")),
+    "mixers": (MIXERS, OVERCOOKED),
+}
+
+
+@dataclasses.dataclass(frozen=True)
+class Protocol:
+    """How many seeds and episodes every cell gets."""
+
+    name: str
+    seeds: int
+    max_episodes: int | None  # None: each scenario's paper budget; else at most this many episodes per seed
+    about: str
+    tiny: bool = False  # tiny networks and budgets (a smoke run of the sweep's plumbing)
+
+
+PROTOCOLS = {
+    "paper": Protocol("paper", 20, None, "20 seeds, the paper's budget per scenario (a GPU or a long campaign)"),
+    "cpu": Protocol("cpu", 4, 10_000, "4 seeds, at most 10K episodes per seed (the paper's 40K-120K), for a 2-core CPU"),
+    "smoke": Protocol("smoke", 1, 32, "1 seed, 32 episodes, tiny networks: checks a sweep's plumbing in minutes",
+                      tiny=True),
+}
+
+
+def plan(experiment: str, protocol: str = "cpu", seeds: tuple[int, int] | None = None,
+         only: str | None = None) -> list[Cell]:
+    """Every cell of ``experiment`` under ``protocol``; ``seeds`` = (first seed, count) replaces the protocol's
+    count (e.g. (4, 4) adds seeds 4-7); ``only`` keeps the cells whose path contains that text."""
+    if experiment not in EXPERIMENTS:
+        raise ValueError(f"unknown experiment {experiment!r}; valid experiments: {list(EXPERIMENTS)}")
+    if protocol not in PROTOCOLS:
+        raise ValueError(f"unknown protocol {protocol!r}; valid protocols: {list(PROTOCOLS)}")
+    proto = PROTOCOLS[protocol]
+    first, count = seeds if seeds is not None else (0, proto.seeds)
+    methods, scenarios = EXPERIMENTS[experiment]
+    cells = []
+    for scenario in scenarios:
+        for method in methods:
+            budget = method.config(scenario, proto.tiny).episodes
+            if proto.max_episodes is not None:
+                budget = min(budget, proto.max_episodes)
+            cells.append(Cell(experiment, method, scenario, first, count, budget, proto.tiny))
+    if only is not None:
+        cells = [c for c in cells if only in c.path]
+        if not cells:
+            raise ValueError(f"--only {only!r} matches no cell of {experiment!r}")
+    return cells
+
+
+def cell_status(out_dir: str, cell: Cell) -> str:
+    """'done' (a summary), 'interrupted' (a run folder without one) or 'new'. A folder that holds a run of another
+    configuration (other settings, budget or seeds) is refused, naming what differs: cells are shared between
+    experiments by path, so a path must always mean the same run."""
+    import json
+
+    path = os.path.join(out_dir, cell.path)
+    config_path = os.path.join(path, "config.json")
+    if not os.path.exists(config_path):
+        return "new"
+    with open(config_path) as f:
+        meta = json.load(f)
+    held = TrainConfig.from_dict(meta["config"]).flat_dict()
+    wanted = cell.config().flat_dict()
+    differ = [f"{k}: {held.get(k)!r} there, {v!r} here" for k, v in wanted.items() if held.get(k) != v]
+    if (meta["seeds"], meta["seed_offset"]) != (cell.seeds, cell.first_seed):
+        differ.append(f"seeds: {meta['seed_offset']}..{meta['seed_offset'] + meta['seeds'] - 1} there, "
+                      f"{cell.first_seed}..{cell.first_seed + cell.seeds - 1} here")
+    if differ:
+        raise ValueError(f"{path} holds another run than the sweep's cell ({'; '.join(differ)}); move it away or use "
+                         "another --out")
+    return "done" if os.path.exists(os.path.join(path, "summary.json")) else "interrupted"
+
+
+def run_sweep(cells: list[Cell], out_dir: str, devices: int = 1, progress: bool = True, log=print) -> dict[str, str]:
+    """Run every cell not done yet (resume the interrupted ones); returns {cell path: what was done}."""
+    import jax
+
+    from jaxmac.run import resume_run, train_run
+
+    done = {}
+    for k, cell in enumerate(cells):
+        status = cell_status(out_dir, cell)
+        path = os.path.join(out_dir, cell.path)
+        log(f"[{k + 1}/{len(cells)}] {cell.path}: {status}")
+        if status == "done":
+            done[cell.path] = "skipped"
+            continue
+        if status == "interrupted":
+            resume_run(path, progress=progress, devices=devices)
+            done[cell.path] = "resumed"
+        else:
+            train_run(cell.config(), cell.seeds, path, seed_offset=cell.first_seed, progress=progress, devices=devices)
+            done[cell.path] = "trained"
+        jax.clear_caches()  # the next cell compiles its own program
+    return done

@@ -1,0 +1,92 @@
+"""The sweep layer: which cells an experiment has, and that finished cells are skipped and interrupted ones resumed."""
+
+from __future__ import annotations
+
+import json
+import os
+
+import pytest
+
+import jaxmac.run
+from jaxmac.sweep import EXPERIMENTS, cell_status, plan, run_sweep
+
+
+def test_the_experiments_have_the_papers_cells():
+    bp = plan("bp")
+    assert len(bp) == 5 * 7 and {c.scenario for c in bp} == {f"boxpushing-{g}x{g}" for g in (6, 8, 10, 12, 14)}
+    warehouse = {c.method.algorithm for c in plan("warehouse")}
+    assert "maccen_ddrqn" not in warehouse and "macdec_ddrqn" not in warehouse and len(plan("warehouse")) == 5 * 5
+    ablation = plan("ablation")
+    assert {c.scenario for c in ablation} == {"overcooked-B", "warehouse-E"} and len(ablation) == 8
+    wo_both = next(c for c in ablation if c.method.name == "tomacvf-wo-both").config()
+    assert (wo_both.algo.mixer_params, wo_both.algo.buffer, wo_both.algo.obs_mode) == ("state", "mac_jert", "macro")
+    mixers = {c.method.name: c.config().algo.mixer for c in plan("mixers") if c.scenario == "overcooked-A"}
+    assert mixers == {"tomacvf": "qmix", "tomacvf-vdn": "vdn", "tomacvf-qplex": "qplex", "tomacvf-qtran": "qtran"}
+    # a cell two experiments need is one folder: ToMacVF (QMIX) on Overcooked-B is the ablation's and overcooked's
+    assert {c.path for c in plan("overcooked")} & {c.path for c in ablation} == {"overcooked-B/tomacvf/seeds0-4"}
+    paper = plan("bp", "paper")
+    assert all(c.seeds == 20 and c.episodes == 40_000 for c in paper)
+    assert all(c.seeds == 4 and c.episodes == 10_000 for c in bp)
+
+
+def test_seed_ranges_and_filters():
+    more = plan("bp", seeds=(4, 4), only="boxpushing-6x6/tomacvf")
+    assert [c.path for c in more] == ["boxpushing-6x6/tomacvf/seeds4-8"] and more[0].first_seed == 4
+    with pytest.raises(ValueError, match="unknown experiment 'bpp'; valid experiments: .*'bp'"):
+        plan("bpp")
+    with pytest.raises(ValueError, match="unknown protocol 'gpu'; valid protocols"):
+        plan("bp", "gpu")
+    with pytest.raises(ValueError, match="--only 'zzz' matches no cell"):
+        plan("bp", only="zzz")
+    assert set(EXPERIMENTS) == {"bp", "warehouse", "overcooked", "ablation", "mixers"}
+
+
+def _fake_runs(monkeypatch, calls):
+    """train_run / resume_run that only write the files a run folder would have."""
+
+    def train_run(config, seeds, out, seed_offset=0, **kw):
+        os.makedirs(out)
+        meta = {"config": config.to_dict(), "seeds": seeds, "seed_offset": seed_offset}
+        (open(os.path.join(out, "config.json"), "w")).write(json.dumps(meta))
+        open(os.path.join(out, "summary.json"), "w").write("{}")
+        calls.append(("train", out))
+
+    def resume_run(out, **kw):
+        open(os.path.join(out, "summary.json"), "w").write("{}")
+        calls.append(("resume", out))
+
+    monkeypatch.setattr(jaxmac.run, "train_run", train_run)
+    monkeypatch.setattr(jaxmac.run, "resume_run", resume_run)
+
+
+def test_finished_cells_are_skipped_and_interrupted_ones_resumed(tmp_path, monkeypatch):
+    calls = []
+    _fake_runs(monkeypatch, calls)
+    cells = plan("ablation", "smoke")
+    out = str(tmp_path)
+    first = run_sweep(cells, out, log=lambda *_: None)
+    assert set(first.values()) == {"trained"} and len(calls) == len(cells)
+    os.remove(os.path.join(out, cells[2].path, "summary.json"))  # killed before it finished
+    assert cell_status(out, cells[2]) == "interrupted" and cell_status(out, cells[0]) == "done"
+    calls.clear()
+    second = run_sweep(cells, out, log=lambda *_: None)
+    assert calls == [("resume", os.path.join(out, cells[2].path))]
+    assert [second[c.path] for c in cells] == ["skipped", "skipped", "resumed"] + ["skipped"] * (len(cells) - 3)
+
+
+def test_a_folder_of_another_run_is_refused_naming_what_differs(tmp_path, monkeypatch):
+    _fake_runs(monkeypatch, [])
+    cells = plan("ablation", "smoke", only="overcooked-B/tomacvf/")
+    run_sweep(cells, str(tmp_path), log=lambda *_: None)
+    longer = plan("ablation", "smoke", only="overcooked-B/tomacvf/")[0]
+    longer = type(longer)(**{**longer.__dict__, "episodes": 64})
+    with pytest.raises(ValueError, match="holds another run than the sweep's cell .*episodes: 32 there, 64 here"):
+        cell_status(str(tmp_path), longer)
+
+
+def test_a_real_cell_runs_then_is_skipped(tmp_path):
+    cells = plan("bp", "smoke", only="boxpushing-6x6/tomacvf/")
+    assert run_sweep(cells, str(tmp_path), progress=False, log=lambda *_: None) == {cells[0].path: "trained"}
+    summary = json.loads((tmp_path / cells[0].path / "summary.json").read_text())
+    assert summary["episodes"] == 32 and summary["seeds"] == 1
+    assert run_sweep(cells, str(tmp_path), progress=False, log=lambda *_: None) == {cells[0].path: "skipped"}
