@@ -8,13 +8,15 @@ freshly initialised parameters (ε as given) — a round's ``num_envs`` for the 
 replay batch's ``batch_size`` for ToMacVF — then ``algorithm.update`` on that batch cut to each static length of
 ``bucket_sizes(H, length_buckets)`` that holds it (the trainer picks the smallest), and the full length; for ToMacVF also the update with ``packing`` (the episodes packed into the fewest rows of
 ``bucket_sizes(B, length_buckets)``). ``--run RUN_DIR`` (ToMacVF) samples the batch from that run's replay ring
-(its first seed's, as checkpointed) instead of collecting it. Printed: milliseconds per call (median of ``--repeats``) and the batch's real entries; with
+(its first seed's, as checkpointed) instead of collecting it. Printed: milliseconds per call (median of ``--repeats``) and the batch's real entries (``--ops K``: also the K
+costliest XLA operation kinds of the full-length update, from a ``jax.profiler`` trace); with
 other jobs on the machine read the ratios between the lines, not the milliseconds.
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import statistics
 import time
 
@@ -29,6 +31,9 @@ def main(argv=None) -> None:
     p.add_argument("--epsilon", type=float, default=1.0, help="exploration rate of the profiled collection")
     p.add_argument("--repeats", type=int, default=5)
     p.add_argument("--set", dest="assignments", action="append", default=[], metavar="KEY=VALUE")
+    p.add_argument("--ops", type=int, default=0, metavar="K",
+                   help="also trace the full-length update with jax.profiler and print the K costliest XLA operation "
+                        "kinds (matmul fusions, loops, copies, ...) in ms per update")
     p.add_argument("--run", default=None, metavar="RUN_DIR",
                    help="ToMacVF: sample the batch from this run's ring (its config, with --set applied, replaces "
                         "--scenario)")
@@ -97,6 +102,11 @@ def main(argv=None) -> None:
     progress = Progress(episodes=zero, env_steps=zero, updates=zero)
     plain = config.override(length_buckets=1)
     update = jax.jit(make_algorithm(plain, env).update)
+    if args.ops:
+        print(f"  XLA operation kinds of the full-length update (ms per update; a loop's time includes its body's):")
+        for kind, ms in op_kinds(update, (state.params, state.target_params, state.opt_state, batch, jax.random.key(2),
+                                          progress), args.repeats)[:args.ops]:
+            print(f"    {ms:8.1f} ms  {kind}")
     for size in [s for s in bucket_sizes(full, config.length_buckets) if s >= real] or [full]:
         ms, _ = timed(update, state.params, state.target_params, state.opt_state, batch.prefix(size),
                       jax.random.key(2), progress)
@@ -110,6 +120,36 @@ def main(argv=None) -> None:
         ms, _ = timed(packed, state.params, state.target_params, state.opt_state, batch, jax.random.key(2), progress)
         size = min(s for s in bucket_sizes(E, config.length_buckets) if s >= rows)
         print(f"  update with packing ({rows} rows needed, {size} run of {E}): {ms:8.1f} ms")
+
+
+def op_kinds(fn, args, repeats: int) -> list[tuple[str, float]]:
+    """[(operation kind, ms per call)], costliest first, from a ``jax.profiler`` trace of ``repeats`` calls of the
+    jitted ``fn``: XLA's thunk names without their numbers (``ynn_fusion`` = XNNPACK matmul fusions, ``dot``,
+    ``while`` = the scans, ``copy``/``transpose`` fusions = layout changes, ...)."""
+    import collections
+    import glob
+    import gzip
+    import json
+    import re
+    import tempfile
+
+    import jax
+
+    jax.block_until_ready(fn(*args))
+    with tempfile.TemporaryDirectory() as trace_dir:
+        jax.profiler.start_trace(trace_dir, create_perfetto_trace=True)
+        for _ in range(repeats):
+            jax.block_until_ready(fn(*args))
+        jax.profiler.stop_trace()
+        # the perfetto trace (the profiler writes a second, TensorBoard-format json.gz beside it)
+        (path,) = glob.glob(os.path.join(trace_dir, "**", "perfetto_trace.json.gz"), recursive=True)
+        with gzip.open(path) as f:
+            events = [e for e in json.load(f)["traceEvents"] if e.get("ph") == "X"]
+    kinds = collections.Counter()
+    for e in events:
+        if not e["name"].startswith(("Thunk", "$", "PjitFunction")):
+            kinds[re.sub(r"[.\d]+$", "", e["name"])] += e["dur"] / 1000 / repeats
+    return kinds.most_common()
 
 
 if __name__ == "__main__":
