@@ -1,0 +1,165 @@
+"""Statistics of a sweep's results: final returns per seed, per-scenario comparisons, aggregates over scenarios.
+
+The paper's metric for a run is its *final return*: the evaluation return (greedy for the value learners, the
+policy's for the actor-critics, as ``metrics.csv``'s ``eval_disc_return``) averaged over the run's last 10
+evaluations, per seed. Per scenario every method gets mean ± s.e. over seeds, a bootstrap 95 % confidence interval
+of the mean (``scipy.stats.bootstrap``), the fraction of the scenario's ceiling (the optimal return on Box Pushing,
+the scripted policies' elsewhere) and Welch's t-test p-value against the reference method (ToMacVF;
+``scipy.stats.ttest_ind(equal_var=False)``). Across the scenarios of an experiment: the interquartile mean (IQM) of
+ceiling-normalised final returns with stratified-bootstrap 95 % intervals and the probability of improvement of the
+reference over each method (rliable, Agarwal et al. 2021).
+
+    results = load_sweep("experiments/sweeps/cpu")          # {(scenario, method): CellResult}
+    rows = compare_methods([r for r in results.values() if r.scenario == "boxpushing-6x6"])
+    agg = aggregate(results, scenarios, methods)
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import re
+
+import numpy as np
+
+from jaxmac.plotting import read_eval_curves
+
+# The ceilings results are compared with: Box Pushing's optimal discounted returns (γ 0.98), Overcooked's scripted
+# discounted returns (γ 0.99), Warehouse's scripted returns (γ 1). See the README's environment table.
+CEILINGS = {
+    "boxpushing-6x6": 270.605, "boxpushing-8x8": 259.691, "boxpushing-10x10": 244.125,
+    "boxpushing-12x12": 229.475, "boxpushing-14x14": 215.686,
+    "overcooked-A": 164.3, "overcooked-B": 149.8, "overcooked-C": 149.8,
+    "warehouse-A": 533.0, "warehouse-B": 533.0, "warehouse-C": 801.0, "warehouse-D": 803.0, "warehouse-E": 1053.0,
+}
+FINAL_POINTS = 10  # the final return averages a run's last this many evaluations
+
+
+@dataclasses.dataclass
+class CellResult:
+    """One (scenario, method) of a sweep, its seed ranges merged."""
+
+    scenario: str
+    method: str
+    seeds: list[int]  # seed ids, ascending
+    finals: np.ndarray  # f64[seeds] final return per seed
+    episodes: np.ndarray  # i64[P] evaluation points (episodes per seed)
+    curves: np.ndarray  # f64[seeds, P] evaluation return per seed
+    budget: int  # training episodes per seed
+    wall_seconds: float  # summed over the seed ranges' runs
+
+
+def final_returns(curves: np.ndarray, last: int = FINAL_POINTS) -> np.ndarray:
+    """Per seed, the mean of the last ``last`` evaluation points of ``curves`` f[seeds, P] (all if fewer)."""
+    curves = np.asarray(curves, dtype=np.float64)
+    if curves.shape[-1] == 0:
+        raise ValueError("final_returns: a run without evaluations")
+    return curves[:, -last:].mean(-1)
+
+
+def load_run_result(run_dir: str) -> tuple[list[int], np.ndarray, np.ndarray, dict]:
+    """(seed ids, episodes [P], curves [seeds, P], summary) of a finished run folder."""
+    with open(os.path.join(run_dir, "summary.json")) as f:
+        summary = json.load(f)
+    episodes, curves = read_eval_curves(os.path.join(run_dir, "metrics.csv"))
+    first = summary.get("seed_offset", 0)
+    return list(range(first, first + summary["seeds"])), episodes, curves, summary
+
+
+def load_sweep(sweep_dir: str) -> dict[tuple[str, str], CellResult]:
+    """Every finished cell of a sweep folder (``<scenario>/<method>/seeds<A>-<B>/``), the seed ranges of a
+    (scenario, method) merged; the curves are cut to the evaluation points all ranges have. Unfinished cells are
+    left out; a seed that two ranges both hold is an error."""
+    results: dict[tuple[str, str], CellResult] = {}
+    for scenario in sorted(os.listdir(sweep_dir)):
+        for method in sorted(os.listdir(os.path.join(sweep_dir, scenario))):
+            method_dir = os.path.join(sweep_dir, scenario, method)
+            ranges = sorted((d for d in os.listdir(method_dir) if re.fullmatch(r"seeds\d+-\d+", d)),
+                            key=lambda d: int(d[5:].split("-")[0]))
+            parts = [load_run_result(os.path.join(method_dir, d)) for d in ranges
+                     if os.path.exists(os.path.join(method_dir, d, "summary.json"))]
+            if not parts:
+                continue
+            seeds = [s for p in parts for s in p[0]]
+            if len(set(seeds)) != len(seeds):
+                raise ValueError(f"{method_dir}: seed ranges overlap ({ranges})")
+            budgets = {p[3]["episodes"] for p in parts}
+            if len(budgets) != 1:
+                raise ValueError(f"{method_dir}: seed ranges were trained for different budgets {sorted(budgets)}")
+            points = min(p[1].shape[0] for p in parts)
+            curves = np.concatenate([p[2][:, :points] for p in parts])
+            results[(scenario, method)] = CellResult(
+                scenario, method, seeds, np.concatenate([final_returns(p[2]) for p in parts]), parts[0][1][:points],
+                curves, budgets.pop(), float(sum(p[3].get("wall_seconds", 0.0) for p in parts)))
+    return results
+
+
+def welch_p(a: np.ndarray, b: np.ndarray) -> float:
+    """Two-sided p-value of Welch's t-test that ``a`` and ``b`` have the same mean (nan with fewer than 2 each)."""
+    from scipy import stats
+
+    if len(a) < 2 or len(b) < 2:
+        return float("nan")
+    return float(stats.ttest_ind(a, b, equal_var=False).pvalue)
+
+
+def bootstrap_ci(values: np.ndarray, seed: int = 0) -> tuple[float, float]:
+    """95 % percentile-bootstrap confidence interval of the mean of ``values`` (nan with fewer than 2)."""
+    from scipy import stats
+
+    values = np.asarray(values, dtype=np.float64)
+    if len(values) < 2 or np.all(values == values[0]):
+        return (float(values.mean()), float(values.mean())) if len(values) >= 2 else (float("nan"),) * 2
+    res = stats.bootstrap((values,), np.mean, confidence_level=0.95, n_resamples=10_000, method="percentile",
+                          rng=np.random.default_rng(seed))
+    return float(res.confidence_interval.low), float(res.confidence_interval.high)
+
+
+def compare_methods(cells: list[CellResult], reference: str = "tomacvf") -> list[dict]:
+    """One row per method of one scenario: n, mean, s.e., bootstrap CI, fraction of the ceiling, Welch's p against
+    ``reference`` (nan for itself or when it is missing), and ``best`` (the highest mean)."""
+    ceiling = CEILINGS.get(cells[0].scenario) if cells else None
+    ref = next((c for c in cells if c.method == reference), None)
+    rows = []
+    for c in cells:
+        n = len(c.finals)
+        rows.append({
+            "scenario": c.scenario, "method": c.method, "seeds": n, "budget": c.budget,
+            "wall_seconds": c.wall_seconds, "mean": float(c.finals.mean()),
+            "se": float(c.finals.std(ddof=1) / np.sqrt(n)) if n > 1 else float("nan"),
+            "ci": bootstrap_ci(c.finals), "of_ceiling": float(c.finals.mean() / ceiling) if ceiling else float("nan"),
+            "p_vs_reference": welch_p(ref.finals, c.finals) if ref is not None and c is not ref else float("nan"),
+        })
+    if rows:
+        best = max(rows, key=lambda r: r["mean"])
+        for r in rows:
+            r["best"] = r is best
+    return rows
+
+
+def aggregate(results: dict[tuple[str, str], CellResult], scenarios: list[str], methods: list[str],
+              reference: str = "tomacvf", reps: int = 2000, seed: int = 0) -> dict:
+    """Across ``scenarios``: per method the IQM of ceiling-normalised final returns with its stratified-bootstrap
+    95 % interval, and the probability that ``reference`` improves on each other method (with its interval).
+    Every method needs every scenario; the seeds per scenario are cut to the fewest any cell has (rliable needs a
+    [runs, tasks] matrix)."""
+    from rliable import library as rly
+    from rliable import metrics
+
+    missing = [(s, m) for s in scenarios for m in methods if (s, m) not in results]
+    if missing:
+        raise ValueError(f"aggregate: cells not finished: {missing}")
+    runs = min(len(results[(s, m)].finals) for s in scenarios for m in methods)
+    scores = {m: np.stack([results[(s, m)].finals[:runs] / CEILINGS[s] for s in scenarios], axis=1) for m in methods}
+    np.random.seed(seed)  # rliable's bootstrap draws from NumPy's global generator
+    iqm, iqm_ci = rly.get_interval_estimates(scores, lambda x: np.array([metrics.aggregate_iqm(x)]), reps=reps)
+    out = {"runs": runs, "iqm": {m: (float(iqm[m][0]), float(iqm_ci[m][0, 0]), float(iqm_ci[m][1, 0]))
+                                 for m in methods}, "p_improvement": {}}
+    if reference in methods:
+        pairs = {f"{reference},{m}": (scores[reference], scores[m]) for m in methods if m != reference}
+        if pairs:
+            poi, poi_ci = rly.get_interval_estimates(pairs, metrics.probability_of_improvement, reps=reps)
+            out["p_improvement"] = {k.split(",")[1]: (float(poi[k]), *map(float, np.ravel(poi_ci[k])))
+                                    for k in pairs}
+    return out

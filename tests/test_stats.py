@@ -1,0 +1,102 @@
+"""Statistics of sweep results against hand computations (scipy only for distribution tails)."""
+
+from __future__ import annotations
+
+import csv
+import json
+
+import numpy as np
+import pytest
+from scipy import stats as sps
+
+from jaxmac.stats import CEILINGS, aggregate, bootstrap_ci, compare_methods, final_returns, load_sweep, welch_p
+
+
+def test_final_return_is_the_mean_of_the_last_ten_evaluations():
+    curves = np.arange(24, dtype=float).reshape(2, 12)
+    np.testing.assert_allclose(final_returns(curves), [np.mean(np.arange(2, 12)), np.mean(np.arange(14, 24))])
+    np.testing.assert_allclose(final_returns(curves[:, :3]), [1.0, 13.0])  # fewer points: all of them
+    with pytest.raises(ValueError, match="without evaluations"):
+        final_returns(np.zeros((2, 0)))
+
+
+def test_welch_p_is_welchs_test():
+    a, b = np.array([1.0, 2.0, 4.0, 7.0]), np.array([3.0, 5.0, 9.0, 11.0, 15.0])
+    va, vb = a.var(ddof=1) / len(a), b.var(ddof=1) / len(b)
+    t = (a.mean() - b.mean()) / np.sqrt(va + vb)
+    df = (va + vb) ** 2 / (va**2 / (len(a) - 1) + vb**2 / (len(b) - 1))  # Welch–Satterthwaite
+    assert welch_p(a, b) == pytest.approx(2 * sps.t.sf(abs(t), df), rel=1e-10)
+    assert np.isnan(welch_p(a[:1], b))
+
+
+def test_bootstrap_interval_brackets_the_mean():
+    values = np.array([10.0, 12.0, 9.0, 15.0, 11.0, 13.0])
+    lo, hi = bootstrap_ci(values)
+    assert values.min() <= lo < values.mean() < hi <= values.max()
+    assert bootstrap_ci(np.array([3.0, 3.0])) == (3.0, 3.0)
+
+
+def _cell(scenario, method, finals):
+    from jaxmac.stats import CellResult
+
+    finals = np.asarray(finals, float)
+    return CellResult(scenario, method, list(range(len(finals))), finals, np.arange(3), finals[:, None] * np.ones(3),
+                      1000, 60.0)
+
+
+def test_compare_methods_rows():
+    cells = [_cell("boxpushing-6x6", "tomacvf", [260, 270, 250, 265]), _cell("boxpushing-6x6", "avf", [0, 40, 20, 10])]
+    rows = {r["method"]: r for r in compare_methods(cells)}
+    assert rows["tomacvf"]["best"] and not rows["avf"]["best"]
+    assert rows["tomacvf"]["mean"] == pytest.approx(261.25)
+    assert rows["tomacvf"]["of_ceiling"] == pytest.approx(261.25 / 270.605)
+    assert rows["avf"]["se"] == pytest.approx(np.std([0, 40, 20, 10], ddof=1) / 2)
+    assert np.isnan(rows["tomacvf"]["p_vs_reference"])
+    assert rows["avf"]["p_vs_reference"] == pytest.approx(welch_p(np.array([260, 270, 250, 265.0]),
+                                                                  np.array([0, 40, 20, 10.0])))
+
+
+def test_aggregate_iqm_and_probability_of_improvement():
+    scen = ["boxpushing-6x6", "overcooked-A"]
+    rng = np.random.default_rng(0)
+    raw = {m: {s: rng.normal(100 + 50 * (m == "tomacvf"), 30, 4) for s in scen} for m in ("tomacvf", "avf")}
+    results = {(s, m): _cell(s, m, raw[m][s]) for m in raw for s in scen}
+    out = aggregate(results, scen, ["tomacvf", "avf"], reps=200)
+    for m in raw:
+        normalised = np.concatenate([raw[m][s] / CEILINGS[s] for s in scen])  # 8 values
+        iqm = np.sort(normalised)[2:6].mean()  # the middle half
+        assert out["iqm"][m][0] == pytest.approx(iqm)
+        assert out["iqm"][m][1] <= iqm <= out["iqm"][m][2]
+    # P(X > Y) + P(X = Y)/2 over all pairs of runs, per scenario, averaged over scenarios
+    x = {s: raw["tomacvf"][s] / CEILINGS[s] for s in scen}
+    y = {s: raw["avf"][s] / CEILINGS[s] for s in scen}
+    poi = np.mean([np.mean((x[s][:, None] > y[s][None]) + 0.5 * (x[s][:, None] == y[s][None])) for s in scen])
+    assert out["p_improvement"]["avf"][0] == pytest.approx(poi)
+    with pytest.raises(ValueError, match="cells not finished"):
+        aggregate(results, scen + ["warehouse-A"], ["tomacvf"])
+
+
+def _fake_run(path, first, finals_per_seed, points=12, budget=96):
+    path.mkdir(parents=True)
+    with open(path / "metrics.csv", "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["seed", "round", "episodes", "eval_disc_return"])
+        for k, final in enumerate(finals_per_seed):
+            for p in range(points):
+                w.writerow([first + k, p, 8 * (p + 1), final if p >= points - 10 else -100.0])
+    (path / "summary.json").write_text(json.dumps({"seeds": len(finals_per_seed), "seed_offset": first,
+                                                   "episodes": budget, "wall_seconds": 5.0}))
+
+
+def test_load_sweep_merges_seed_ranges_and_skips_unfinished(tmp_path):
+    _fake_run(tmp_path / "boxpushing-6x6" / "tomacvf" / "seeds0-2", 0, [1.0, 2.0])
+    _fake_run(tmp_path / "boxpushing-6x6" / "tomacvf" / "seeds2-3", 2, [3.0], points=11)
+    (tmp_path / "boxpushing-6x6" / "avf" / "seeds0-2").mkdir(parents=True)  # started, not finished
+    results = load_sweep(str(tmp_path))
+    assert list(results) == [("boxpushing-6x6", "tomacvf")]
+    cell = results[("boxpushing-6x6", "tomacvf")]
+    assert cell.seeds == [0, 1, 2] and cell.curves.shape == (3, 11) and cell.wall_seconds == 10.0
+    np.testing.assert_allclose(cell.finals, [1.0, 2.0, 3.0])
+    _fake_run(tmp_path / "boxpushing-6x6" / "tomacvf" / "seeds1-2", 1, [5.0])
+    with pytest.raises(ValueError, match="seed ranges overlap"):
+        load_sweep(str(tmp_path))
