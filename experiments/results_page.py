@@ -1,0 +1,144 @@
+"""The results page of a sweep: per experiment its figure, one table per scenario and the aggregates.
+
+    python experiments/results_page.py [SWEEP_DIR] [--out experiments/results/sweep-PROTOCOL] [--experiments bp ...]
+
+Reads the finished cells of ``SWEEP_DIR`` (default ``experiments/sweeps/cpu``, written by ``jaxmac sweep``) and writes
+``OUT/RESULTS.md`` with, for each experiment: the paper's figure (one panel per scenario, one curve per method,
+mean ± s.e. over seeds of the 10-point moving average, the ceiling dashed; ``OUT/<experiment>.png`` and ``.pdf``), a
+table per scenario (seeds, budget, final return mean ± s.e. with its bootstrap 95 % interval, fraction of the ceiling,
+Welch's p against ToMacVF, wall time; the best mean in bold) and, where every method finished every scenario, the
+IQM of ceiling-normalised final returns and ToMacVF's probability of improvement over each method (``jaxmac.stats``).
+Cells not finished are listed as "not run".
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+
+import numpy as np
+
+from jaxmac.plotting import mean_and_standard_error, smooth
+from jaxmac.stats import CEILINGS, aggregate, compare_methods, load_sweep
+from jaxmac.sweep import EXPERIMENTS
+
+REFERENCE = "tomacvf"
+
+
+def method_colours() -> dict[str, str]:
+    """One colour per method name across every figure."""
+    names = sorted({m.name for methods, _ in EXPERIMENTS.values() for m in methods})
+    palette = [f"C{k}" for k in range(10)] + ["#8c564b", "#17becf", "#bcbd22", "#7f7f7f", "#000080"]
+    return {name: palette[k % len(palette)] for k, name in enumerate(names)}
+
+
+def experiment_figure(results, experiment: str, out_base: str, window: int = 10) -> bool:
+    """One panel per scenario of ``experiment``; False when no cell of it has finished."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    methods, scenarios = EXPERIMENTS[experiment]
+    if not any((s, m.name) in results for s in scenarios for m in methods):
+        return False
+    colours = method_colours()
+    fig, axes = plt.subplots(1, len(scenarios), figsize=(4.2 * len(scenarios), 3.6), dpi=110, squeeze=False)
+    for ax, scenario in zip(axes[0], scenarios):
+        for method in methods:
+            cell = results.get((scenario, method.name))
+            if cell is None or not cell.curves.size:
+                continue
+            w = max(1, min(window, cell.curves.shape[1] // 10))
+            mean, se = mean_and_standard_error(smooth(cell.curves, w))
+            se = np.zeros_like(mean) if se is None else se
+            ax.plot(cell.episodes, mean, color=colours[method.name], label=method.label or method.name, lw=1.2)
+            ax.fill_between(cell.episodes, mean - se, mean + se, color=colours[method.name], alpha=0.2)
+        if scenario in CEILINGS:
+            ax.axhline(CEILINGS[scenario], color="k", ls="--", lw=1)
+        ax.set_title(scenario, fontsize=10)
+        ax.set_xlabel("training episodes")
+        ax.grid(alpha=0.3)
+    axes[0][0].set_ylabel("evaluation return")
+    handles = {h.get_label(): h for ax in axes[0] for h in ax.get_legend_handles_labels()[0]}
+    fig.legend(list(handles.values()), list(handles), loc="lower center", ncol=min(7, len(handles)), fontsize=8,
+               frameon=False)
+    fig.tight_layout(rect=(0, 0.1, 1, 1))
+    fig.savefig(out_base + ".png")
+    fig.savefig(out_base + ".pdf")
+    plt.close(fig)
+    return True
+
+
+def _fmt_p(p: float) -> str:
+    return "–" if np.isnan(p) else (f"{p:.3f}" if p >= 0.001 else "<0.001")
+
+
+def scenario_table(results, experiment: str, scenario: str) -> list[str]:
+    methods, _ = EXPERIMENTS[experiment]
+    cells = [results[(scenario, m.name)] for m in methods if (scenario, m.name) in results]
+    labels = {m.name: m.label or m.name for m in methods}
+    lines = [f"**{scenario}** (ceiling {CEILINGS.get(scenario, float('nan')):.1f})", "",
+             "| method | seeds | episodes/seed | final return | 95 % CI | of ceiling | p vs ToMacVF | wall time |",
+             "|---|---|---|---|---|---|---|---|"]
+    for r in compare_methods(cells, REFERENCE):
+        value = f"{r['mean']:.1f} ± {r['se']:.1f}" if not np.isnan(r["se"]) else f"{r['mean']:.1f}"
+        value = f"**{value}**" if r["best"] else value
+        lines.append(f"| {labels[r['method']]} | {r['seeds']} | {r['budget']:,} | {value} | "
+                     f"[{r['ci'][0]:.1f}, {r['ci'][1]:.1f}] | {100 * r['of_ceiling']:.0f} % | "
+                     f"{_fmt_p(r['p_vs_reference'])} | {r['wall_seconds'] / 60:.0f} min |")
+    for m in methods:
+        if (scenario, m.name) not in results:
+            lines.append(f"| {labels[m.name]} | not run | | | | | | |")
+    return lines + [""]
+
+
+def aggregate_lines(results, experiment: str) -> list[str]:
+    methods, scenarios = EXPERIMENTS[experiment]
+    names = [m.name for m in methods]
+    labels = {m.name: m.label or m.name for m in methods}
+    if any((s, n) not in results for s in scenarios for n in names):
+        return ["Aggregates: not every method has finished every scenario yet.", ""]
+    agg = aggregate(results, list(scenarios), names, REFERENCE)
+    lines = [f"Aggregates over {len(scenarios)} scenarios ({agg['runs']} seeds each; final returns divided by the "
+             "ceiling; rliable, stratified bootstrap 95 % intervals):", "",
+             "| method | IQM | 95 % CI | P(ToMacVF > method) | 95 % CI |", "|---|---|---|---|---|"]
+    for n in names:
+        iqm = agg["iqm"][n]
+        poi = agg["p_improvement"].get(n)
+        poi_text = "– | –" if poi is None else f"{poi[0]:.2f} | [{poi[1]:.2f}, {poi[2]:.2f}]"
+        lines.append(f"| {labels[n]} | {iqm[0]:.2f} | [{iqm[1]:.2f}, {iqm[2]:.2f}] | {poi_text} |")
+    return lines + [""]
+
+
+def write_page(sweep_dir: str, out_dir: str, experiments: list[str]) -> str:
+    results = load_sweep(sweep_dir) if os.path.isdir(sweep_dir) else {}
+    os.makedirs(out_dir, exist_ok=True)
+    lines = ["# Results of the sweep", "", f"Generated by `python experiments/results_page.py {sweep_dir}` from the "
+             "finished run folders. Final return: evaluation return averaged over a run's last 10 evaluations, per "
+             "seed; mean ± s.e. over seeds.", ""]
+    for experiment in experiments:
+        lines += [f"## {experiment}", ""]
+        if experiment_figure(results, experiment, os.path.join(out_dir, experiment)):
+            lines += [f"![{experiment}]({experiment}.png)", ""]
+        for scenario in EXPERIMENTS[experiment][1]:
+            lines += scenario_table(results, experiment, scenario)
+        lines += aggregate_lines(results, experiment)
+    path = os.path.join(out_dir, "RESULTS.md")
+    with open(path, "w") as f:
+        f.write("\n".join(lines))
+    return path
+
+
+def main(argv=None) -> None:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("sweep_dir", nargs="?", default=os.path.join("experiments", "sweeps", "cpu"))
+    p.add_argument("--out", default=None, help="default: experiments/results/sweep-<the sweep folder's name>")
+    p.add_argument("--experiments", nargs="+", default=list(EXPERIMENTS), choices=list(EXPERIMENTS))
+    args = p.parse_args(argv)
+    out = args.out or os.path.join("experiments", "results", f"sweep-{os.path.basename(os.path.normpath(args.sweep_dir))}")
+    print(f"wrote {write_page(args.sweep_dir, out, args.experiments)}")
+
+
+if __name__ == "__main__":
+    main()

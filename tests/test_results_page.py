@@ -1,0 +1,26 @@
+"""The results page of a sweep from tiny fake run folders: figure, tables, "not run" cells, aggregates."""
+
+from __future__ import annotations
+
+import sys
+import pathlib
+
+from test_stats import _fake_run
+
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1] / "experiments"))
+from results_page import write_page  # noqa: E402
+
+
+def test_results_page_from_run_folders(tmp_path):
+    sweep = tmp_path / "sweep"
+    for s in ("overcooked-B", "warehouse-E"):
+        for m, base in (("tomacvf", 140.0), ("tomacvf-wo-atpg", 100.0), ("tomacvf-wo-sjert", 90.0),
+                        ("tomacvf-wo-both", 60.0)):
+            _fake_run(sweep / s / m / "seeds0-2", 0, [base, base + 10])
+    _fake_run(sweep / "overcooked-A" / "tomacvf" / "seeds0-2", 0, [150.0, 160.0])
+    page = pathlib.Path(write_page(str(sweep), str(tmp_path / "out"), ["ablation", "mixers"])).read_text()
+    assert (tmp_path / "out" / "ablation.png").stat().st_size > 5000 and (tmp_path / "out" / "ablation.pdf").exists()
+    assert "| ToMacVF | 2 | 96 | **145.0 ± 5.0** |" in page  # the best mean in bold
+    assert "| ToMacVF w/o ATPG | 2 | 96 | 105.0 ± 5.0 |" in page
+    assert "| ToMacVF_VDN | not run |" in page  # the mixers experiment has only ToMacVF (QMIX) on Overcooked-A
+    assert "IQM" in page.split("## mixers")[0] and "not every method has finished" in page.split("## mixers")[1]
