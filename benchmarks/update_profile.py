@@ -7,7 +7,7 @@ One seed, ``jax.jit`` of each piece, the scenario's configuration: a first-finis
 freshly initialised parameters (ε as given) — a round's ``num_envs`` for the on-policy learners (their batch), a
 replay batch's ``batch_size`` for ToMacVF — then ``algorithm.update`` on that batch cut to each static length of
 ``bucket_sizes(H, length_buckets)`` that holds it (the trainer picks the smallest), and the full length; for ToMacVF also the update with ``packing`` (the episodes packed into the fewest rows of
-``bucket_sizes(B, length_buckets)``). ``--run RUN_DIR`` (ToMacVF) samples the batch from that run's replay ring
+``packed_row_sizes(B, length_buckets)``). ``--run RUN_DIR`` (ToMacVF) samples the batch from that run's replay ring
 (its first seed's, as checkpointed) instead of collecting it. Printed: milliseconds per call (median of ``--repeats``) and the batch's real entries (``--ops K``: also the K
 costliest XLA operation kinds of the full-length update, from a ``jax.profiler`` trace); with
 other jobs on the machine read the ratios between the lines, not the milliseconds.
@@ -44,7 +44,7 @@ def main(argv=None) -> None:
 
     from jaxmac.algos import make_algorithm
     from jaxmac.algos.base import Progress, store_length
-    from jaxmac.buckets import bucket_sizes
+    from jaxmac.buckets import bucket_sizes, packed_row_sizes
     from jaxmac.buffer.episode import write_episode
     from jaxmac.collect import run_episodes_first_finished
     from jaxmac.config import make_env, scenario_config
@@ -118,7 +118,7 @@ def main(argv=None) -> None:
         rows = int(pack_plan(batch.length, full + 1).rows_used)
         packed = jax.jit(make_algorithm(config.override(packing=True), env).update)
         ms, _ = timed(packed, state.params, state.target_params, state.opt_state, batch, jax.random.key(2), progress)
-        size = min(s for s in bucket_sizes(E, config.length_buckets) if s >= rows)
+        size = min(s for s in packed_row_sizes(E, config.length_buckets) if s >= rows)
         print(f"  update with packing ({rows} rows needed, {size} run of {E}): {ms:8.1f} ms")
 
 

@@ -18,7 +18,7 @@ from envs_jax.wrappers import AutoReset
 from jaxmac import actor_critic as ac
 from jaxmac.algos import make_algorithm
 from jaxmac.algos.base import Progress
-from jaxmac.buckets import SEED_AXIS, any_seed, bucket_sizes, run_bucketed
+from jaxmac.buckets import SEED_AXIS, any_seed, bucket_sizes, packed_row_sizes, run_bucketed
 from jaxmac.collect import random_policy, run_episodes_first_finished, select_first_finished
 from jaxmac.config import make_env, scenario_config
 
@@ -27,6 +27,9 @@ def test_bucket_sizes_halve_from_the_full_length_and_refuse_bad_counts():
     assert bucket_sizes(100, 1) == (100,)
     assert bucket_sizes(100, 4) == (13, 25, 50, 100)
     assert bucket_sizes(3, 5) == (1, 2, 3)  # sizes collapse, never below one entry
+    assert packed_row_sizes(128, 4) == (16, 24, 32, 48, 64, 96, 128)
+    assert packed_row_sizes(32, 4) == (4, 6, 8, 12, 16, 24, 32)
+    assert packed_row_sizes(8, 1) == (8,) and packed_row_sizes(3, 3) == (1, 2, 3)
     for bad in (0, -1, 2.0, True):
         with pytest.raises(ValueError, match="length_buckets"):
             bucket_sizes(100, bad)

@@ -53,7 +53,7 @@ class ToMacVFSettings:
     # D8: False = one step on L = micro + λ·macro; True = the paper's literal pseudocode, a micro-TD step then an
     # additional λ·macro-TD step (on the updated parameters) when the batch holds a completed macro-action
     sequential_updates: bool = False
-    # the networks run on the sampled episodes packed back to back into the fewest of bucket_sizes(B, length_buckets)
+    # the networks run on the sampled episodes packed back to back into the fewest of packed_row_sizes(B, length_buckets)
     # rows (``buffer.packing``; same losses) instead of one slot each cut to the longest (False, the reference)
     packing: bool = False
     # weight of squared TD errors where Q_tot is above its target; 1 = plain MSE (D18), < 1 = optimistic

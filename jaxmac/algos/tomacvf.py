@@ -40,7 +40,7 @@ that holds the longest of them (``EpisodeSlot.prefix``, ``buckets.length_buckete
 every target row lies within an episode's length, so the losses are those of the full-length slots, at the cost of
 the real lengths (1 = always the full horizon, the reference path). With ``packing=True`` (Mac-SJERT) the networks
 instead run on the sampled episodes packed back to back (``buffer.packing``: GRU carries reset and ATPG's attention
-restarts at every episode's first row) into the fewest of ``bucket_sizes(B, length_buckets)`` rows, and their
+restarts at every episode's first row) into the fewest of ``packed_row_sizes(B, length_buckets)`` rows, and their
 outputs are unpacked to the slots before the (unchanged) losses: the same values at the cost of the *total* length.
 
 Acting (D17) is decentralised: each agent's GRU steps on its own observation stream and a
@@ -56,7 +56,7 @@ import jax.numpy as jnp
 from envs_jax.core import MacroEnv
 from jaxmac.acting import epsilon_greedy
 from jaxmac.algos.base import Algorithm, default_optimizer, gradient_update
-from jaxmac.buckets import bucket_sizes, length_bucketed, run_bucketed
+from jaxmac.buckets import length_bucketed, packed_row_sizes, run_bucketed
 from jaxmac.buffer import packing, views
 from jaxmac.buffer.episode import EpisodeSlot
 from jaxmac.config import TrainConfig
@@ -246,7 +246,7 @@ def make_tomacvf(config: TrainConfig, env: MacroEnv) -> Algorithm:
         return gradient_update(loss_of(terms_fn), optimizer)
 
     if settings.packing:
-        # the networks run on the sampled episodes packed into the fewest of bucket_sizes(B, length_buckets) rows
+        # the networks run on the sampled episodes packed into the fewest of packed_row_sizes(B, length_buckets) rows
         def update(params, target_params, opt_state, batch, key, progress):
             plan = packing.pack_plan(batch.length, batch.config.horizon + 1)
 
@@ -254,7 +254,7 @@ def make_tomacvf(config: TrainConfig, env: MacroEnv) -> Algorithm:
                 terms_fn = lambda p, t, b: sjert_terms(p, t, b, packed=(plan, rows))  # noqa: E731
                 return make_update(terms_fn)(params, target_params, opt_state, batch, key, progress)
 
-            sizes = bucket_sizes(batch.length.shape[0], config.length_buckets)
+            sizes = packed_row_sizes(batch.length.shape[0], config.length_buckets)
             return run_bucketed(with_rows, sizes, plan.rows_used)
     else:
         # on the batch's shortest prefix that holds its longest episode (the full horizon when length_buckets = 1)
