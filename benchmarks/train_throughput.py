@@ -43,9 +43,10 @@ ORIGINAL = {
 }
 
 
-# The two paths of --compare: the update on the full horizon, and on the batch's real lengths.
+# The two paths of --compare: the update on the full horizon, and on the batch's real lengths (the scenario's own
+# settings: packed episodes).
 REFERENCE_PATH = {"tomacvf": ["length_buckets=1", "packing=false"]}
-NEW_PATH = {"tomacvf": ["packing=true"]}
+NEW_PATH = {"tomacvf": []}
 
 
 def measure(algorithm: str, scenario: str, seeds: int, seed_offset: int, chunks: int, assignments: list[str],
@@ -190,7 +191,7 @@ def compare(args) -> None:
         raise SystemExit(f"--from-run names {len(runs)} runs for {len(args.scenario)} scenarios: give one per scenario")
     seeds = args.seeds[0] if args.seeds != [1, 4, 8] else 1
     print(f"{args.algorithm}: reference path ({' '.join(REFERENCE_PATH[args.algorithm])}) against the new path "
-          f"({' '.join(NEW_PATH[args.algorithm])}); {seeds} seed(s), {args.chunks} timed chunks each, one process at a "
+          f"({' '.join(NEW_PATH[args.algorithm]) or 'the scenario settings'}); {seeds} seed(s), {args.chunks} timed chunks each, one process at a "
           f"time; extra settings: {' '.join(args.assignments) or 'none'}")
     print(f"{'scenario':<16} {'from':<10} {'mean length':>11} {'ref ep/CPU-s':>12} {'new ep/CPU-s':>12} {'new/ref':>8}")
     for scenario, run_dir in zip(args.scenario, runs):

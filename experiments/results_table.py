@@ -23,7 +23,7 @@ def _changed_settings(run_dir: pathlib.Path, scenario: str) -> str:
     config = TrainConfig.from_dict(json.loads((run_dir / "config.json").read_text())["config"])
     resolved = config.flat_dict()
     defaults = scenario_config(scenario, config.algorithm).flat_dict()
-    ignored = {"episodes", "length_buckets"}  # the budget is its own column; buckets change the speed only
+    ignored = {"episodes", "length_buckets", "packing"}  # the budget is its own column; these change the speed only
     changed = [f"{k}={v}" for k, v in resolved.items() if k in defaults and k not in ignored and defaults[k] != v]
     return ", ".join(changed) or "defaults"
 

@@ -65,10 +65,11 @@ BASELINES = (
     Method("avf", "avf", label="AVF"),
 )
 WO_ATPG = Method("tomacvf-wo-atpg", "tomacvf", (("mixer_params", "state"),), "ToMacVF w/o ATPG")
-WO_SJERT = Method("tomacvf-wo-sjert", "tomacvf", (("buffer", "mac_jert"), ("obs_mode", "macro")),
-                  "ToMacVF w/o Mac-SJERT")
-WO_BOTH = Method("tomacvf-wo-both", "tomacvf", (("mixer_params", "state"), ("buffer", "mac_jert"),
-                                                ("obs_mode", "macro")), "ToMacVF w/o ATPG and Mac-SJERT")
+# Mac-JERT (the squeezed sequence) stores macro-observations only and is not packed
+_MAC_JERT = (("buffer", "mac_jert"), ("obs_mode", "macro"), ("packing", False))
+WO_SJERT = Method("tomacvf-wo-sjert", "tomacvf", _MAC_JERT, "ToMacVF w/o Mac-SJERT")
+WO_BOTH = Method("tomacvf-wo-both", "tomacvf", (("mixer_params", "state"),) + _MAC_JERT,
+                 "ToMacVF w/o ATPG and Mac-SJERT")
 # ToMacVF's own mixer is QMIX: its cells are the other experiments' ToMacVF cells
 MIXERS = (dataclasses.replace(TOMACVF, label="ToMacVF_QMIX"),) + tuple(
     Method(f"tomacvf-{m}", "tomacvf", (("mixer", m),), f"ToMacVF_{label}")

@@ -107,7 +107,7 @@ def test_tomacvf_update_with_packing_equals_the_full_length_update(scenario):
     env = make_env(config)
     slots = short_slots(env.spec)
     plain = make_algorithm(config, env)
-    packed = make_algorithm(config.override(packing=True, length_buckets=3), env)  # 2, 3 or 5 rows: 3 here
+    packed = make_algorithm(config.override(packing=True, length_buckets=3), env)  # 2, 3, 4 or 5 rows: 3 here
     params, target = random_params(plain.init_params, 6, 0.3), random_params(plain.init_params, 7, 0.3)
     progress = Progress(episodes=jnp.int32(8), env_steps=jnp.int32(60), updates=jnp.int32(1))
     args = (params, target, plain.optimizer.init(params), slots, jax.random.key(1), progress)

@@ -34,7 +34,8 @@ _TINY_AC = dict(actor_mlp_sizes=(8, 8), actor_rnn_size=8, critic_mlp_sizes=(8, 8
 REGISTRY: dict[str, Entry] = {
     "tomacvf": Entry(
         s.ToMacVFSettings, "jaxmac.algos.tomacvf:make_tomacvf", s.TOMACVF,
-        dict(rnn_size=8, fc_size=16, mixer_embed=8, attn_dim=8, time_pe_dim=4, progress_pe_dim=4, length_buckets=1),
+        dict(rnn_size=8, fc_size=16, mixer_embed=8, attn_dim=8, time_pe_dim=4, progress_pe_dim=4, length_buckets=1,
+             packing=False),
         "ToMacVF: temporal agent nets, ATPG-parameterised QMIX, micro- and macro-TD on Mac-SJERT",
         length_buckets=True),
     "maccen_ddrqn": Entry(

@@ -82,7 +82,8 @@ class ToMacVFSettings:
         _check_choice(owner, "mixer_params", self.mixer_params, ("atpg", "state"))
         if self.packing and self.buffer == "mac_jert":
             raise ValueError(f"{owner}: packing=True packs Mac-SJERT episode slots; buffer='mac_jert' trains on the "
-                             f"squeezed sequence, which is not packed (use length_buckets with it)")
+                             f"squeezed sequence, which is not packed: add packing=false (the scenarios turn packing "
+                             f"on for Mac-SJERT; length_buckets still cut the squeezed sequence)")
         if self.sequential_updates and self.buffer == "mac_jert":
             raise ValueError(f"{owner}: sequential_updates=True alternates micro- and macro-TD steps, but "
                              f"buffer='mac_jert' trains one TD loss; use buffer='mac_sjert' with it")
@@ -299,15 +300,16 @@ OVERCOOKED = ("overcooked-A", "overcooked-B", "overcooked-C")
 WAREHOUSE = tuple(f"warehouse-{c}" for c in "ABCDE")
 SCENARIOS = BOXPUSHING + OVERCOOKED + WAREHOUSE
 
-_BP = dict(length_buckets=4, batch_size=128, eps_end=0.1, eps_decay_episodes=4000, buffer_episodes=5000, n_step=1)
-_OC = dict(length_buckets=4, lr=3e-4, rnn_size=32, n_step=5, eps_end=0.05, eps_decay_episodes=20_000,
+_BP = dict(length_buckets=4, packing=True, batch_size=128, eps_end=0.1, eps_decay_episodes=4000, buffer_episodes=5000, n_step=1)
+_OC = dict(length_buckets=4, packing=True, lr=3e-4, rnn_size=32, n_step=5, eps_end=0.05, eps_decay_episodes=20_000,
            buffer_episodes=2000, target_update_episodes=16, updates_per_round=1)
-_WH = dict(length_buckets=4, batch_size=32, num_envs=8, rnn_size=64, n_step=5, eps_decay_episodes=10_000,
+_WH = dict(length_buckets=4, packing=True, batch_size=32, num_envs=8, rnn_size=64, n_step=5, eps_decay_episodes=10_000,
            buffer_episodes=2000, updates_per_round=1)
 
 TOMACVF: dict[str, dict[str, Any]] = {
-    # Every scenario: the update runs on the sampled episodes cut to the shortest of 4 lengths (H/8 … H) that holds
-    # them (``length_buckets``; 1 = the full horizon, the reference path).
+    # Every scenario: the networks of the update run on the sampled episodes packed back to back into the fewest of
+    # packed_row_sizes(B, 4) rows (``packing``; with packing=False on the batch cut to the shortest of 4 lengths
+    # H/8 … H that holds it; length_buckets=1 and packing=False = the full horizon, the reference path).
     # Box Pushing: E = "episodes per train", max(1, E/10) updates per round (D13); 12/14: rnn 64, lr 5e-4.
     "boxpushing-6x6": dict(_BP, lr=1e-3, num_envs=16, updates_per_round=1, target_update_episodes=32, rnn_size=32),
     "boxpushing-8x8": dict(_BP, lr=1e-3, num_envs=16, updates_per_round=1, target_update_episodes=32, rnn_size=32),
