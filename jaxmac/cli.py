@@ -4,8 +4,10 @@
     jaxmac train --preset quickstart                      # ToMacVF learning Box Pushing 6x6 in a few minutes
     jaxmac train --scenario boxpushing-6x6 --seeds 8      # ToMacVF with the paper's settings, run folder
     jaxmac train --algorithm maccen_ddrqn --seeds 4       # a baseline with its original settings
+    jaxmac train --scenario boxpushing-6x6 --seeds 4:8 --devices 2   # seeds 4-7, sharded over 2 devices
     jaxmac train --resume runs/RUN_DIR                    # continue a killed run
     jaxmac eval runs/RUN_DIR                              # greedy episode: text + PNG strip
+    jaxmac sweep ablation --protocol cpu                  # one of the paper's experiments, cell by cell
 """
 
 from __future__ import annotations
