@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import subprocess
 import sys
 import time
@@ -106,14 +105,11 @@ def run_workers(algorithm: str, scenario: str, seeds: int, workers: int, chunks:
                 assignments: list[str], run_dir: str | None = None, devices: int = 1) -> list[dict]:
     """``workers`` concurrent processes, each measuring its share of the seeds (sharded over ``devices`` host
     devices of its own)."""
-    env = dict(os.environ)
-    if devices > 1:
-        env["XLA_FLAGS"] = f"{env.get('XLA_FLAGS', '')} --xla_force_host_platform_device_count={devices}".strip()
-    share = [seeds // workers + (k < seeds % workers) for k in range(workers)]
-    offsets = [sum(share[:k]) for k in range(workers)]
+    from jaxmac.workers import split_seeds
+
     procs = [subprocess.Popen([sys.executable, __file__, "--child", algorithm, scenario, str(s), str(o), str(chunks),
                               json.dumps(assignments), run_dir or "", str(devices)],
-                              stdout=subprocess.PIPE, text=True, env=env) for s, o in zip(share, offsets) if s > 0]
+                              stdout=subprocess.PIPE, text=True) for o, s in split_seeds(seeds, workers)]
     out = []
     for p in procs:
         stdout, _ = p.communicate()
@@ -127,6 +123,9 @@ def main(argv=None) -> None:
     if argv is None and len(sys.argv) > 1 and sys.argv[1] == "--child":
         algorithm, scenario = sys.argv[2], sys.argv[3]
         seeds, offset, chunks = int(sys.argv[4]), int(sys.argv[5]), int(sys.argv[6])
+        from jaxmac.run import use_host_devices
+
+        use_host_devices(int(sys.argv[9]))  # before JAX starts
         print(json.dumps(measure(algorithm, scenario, seeds, offset, chunks, json.loads(sys.argv[7]),
                                  sys.argv[8] or None, int(sys.argv[9]))))
         return

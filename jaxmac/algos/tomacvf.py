@@ -71,7 +71,6 @@ from jaxmac.networks import (
     init_agent_params,
     init_mixer_params,
     initial_carry,
-    NetInputs,
     jert_sequence,
     slot_inputs,
     take_rows,
@@ -153,8 +152,7 @@ def make_tomacvf(config: TrainConfig, env: MacroEnv) -> Algorithm:
         """``forward`` on the episodes packed into ``rows`` rows (``buffer.packing``), unpacked to their slots."""
         layout = packing.packed_layout(plan, rows, inputs.t.shape[-1])
         pk = lambda x: packing.pack(x, layout)  # noqa: E731
-        packed = NetInputs(obs=pk(inputs.obs), t=pk(inputs.t), prev_t=pk(inputs.prev_t), prev_mac=pk(inputs.prev_mac),
-                           prev_t_m=pk(inputs.prev_t_m), reset=layout.reset)
+        packed = jax.tree_util.tree_map(pk, inputs).replace(reset=layout.reset)
         q, weights = forward(params, packed, pk(tau), pk(state))
         return packing.unpack(q, plan), weights.map_rows(lambda x: packing.unpack(x, plan))
 
@@ -251,7 +249,9 @@ def make_tomacvf(config: TrainConfig, env: MacroEnv) -> Algorithm:
             plan = packing.pack_plan(batch.length, batch.config.horizon + 1)
 
             def with_rows(rows):
-                terms_fn = lambda p, t, b: sjert_terms(p, t, b, packed=(plan, rows))  # noqa: E731
+                # as many rows as episodes: nothing to gain from packing, the networks run on the slots themselves
+                packed = None if rows == batch.length.shape[0] else (plan, rows)
+                terms_fn = lambda p, t, b: sjert_terms(p, t, b, packed=packed)  # noqa: E731
                 return make_update(terms_fn)(params, target_params, opt_state, batch, key, progress)
 
             sizes = packed_row_sizes(batch.length.shape[0], config.length_buckets)
