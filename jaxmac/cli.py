@@ -6,6 +6,7 @@
     jaxmac train --algorithm maccen_ddrqn --seeds 4       # a baseline with its original settings
     jaxmac train --scenario boxpushing-6x6 --seeds 4:8 --devices 2   # seeds 4-7, sharded over 2 devices
     jaxmac train --resume runs/RUN_DIR                    # continue a killed run
+    jaxmac train --finish runs/RUN_DIR                    # end a run where it stands (a curve flat for long)
     jaxmac eval runs/RUN_DIR                              # greedy episode: text + PNG strip
     jaxmac sweep ablation --protocol cpu                  # one of the paper's experiments, cell by cell
 """
@@ -52,7 +53,7 @@ def cmd_rollout(args) -> int:
 
 def cmd_train(args) -> int:
     from jaxmac.config import preset_config, scenario_config
-    from jaxmac.run import default_out_dir, enable_compilation_cache, resume_run, train_run, use_host_devices
+    from jaxmac.run import default_out_dir, enable_compilation_cache, finish_run, resume_run, train_run, use_host_devices
     from jaxmac.workers import is_worker_run, resume_workers, train_workers
 
     devices = 1 if args.devices is None else args.devices
@@ -61,7 +62,18 @@ def cmd_train(args) -> int:
                          "(--devices: one process, seeds sharded over devices; --workers: several processes)")
     use_host_devices(devices)  # before JAX starts: on a CPU, split the host into that many devices
     enable_compilation_cache()
-    if args.resume:
+    if args.finish:
+        if args.resume or any(v is not None for v in (args.scenario, args.seeds, args.preset, args.workers,
+                                                       args.algorithm, args.episodes, args.out)) \
+                or args.set or args.tiny:
+            raise ValueError("--finish ends a run as it stands and takes no other option than --devices")
+        if is_worker_run(args.finish):
+            raise ValueError(f"--finish {args.finish}: a run of several worker processes cannot be finished early "
+                             "(finish each worker's folder under it instead)")
+        summary = finish_run(args.finish)
+        print(f"finished at {summary['stopped_at']} of {summary['budget']} episodes per seed")
+        out = args.finish
+    elif args.resume:
         import os
 
         diverged = os.path.exists(os.path.join(args.resume, "diverged.json"))
@@ -143,7 +155,7 @@ def seed_range(text: str) -> tuple[int, int]:
 
 def cmd_sweep(args) -> int:
     from jaxmac.run import enable_compilation_cache, use_host_devices
-    from jaxmac.sweep import PROTOCOLS, cell_status, plan, run_sweep
+    from jaxmac.sweep import PROTOCOLS, cell_status, estimate_seconds, load_rates, not_run_cells, plan, run_sweep
 
     devices = 1 if args.devices is None else args.devices
     use_host_devices(devices)  # before JAX starts
@@ -152,8 +164,21 @@ def cmd_sweep(args) -> int:
     print(f"sweep {args.experiment}, protocol {args.protocol} ({PROTOCOLS[args.protocol].about}): {len(cells)} cells "
           f"into {out}")
     if args.dry_run:
+        rates = load_rates(args.rates)
+        total, unknown = 0.0, 0
         for cell in cells:
-            print(f"  {cell.path}: {cell.episodes} episodes per seed, {cell_status(out, cell)}")
+            estimate = estimate_seconds(cell, rates)
+            if estimate is None:
+                unknown += 1
+                cost = "cost not measured"
+            else:
+                total += estimate[0]
+                cost = f"~{estimate[0] / 3600:.1f} core-h (rate of {estimate[1]})"
+            print(f"  {cell.path}: {cell.episodes} episodes per seed, {cell_status(out, cell)}, {cost}")
+        for scenario, method, why in not_run_cells(args.experiment, args.protocol):
+            print(f"  {scenario}/{method}: not run under this protocol: {why}")
+        print(f"estimated {total / 3600:.1f} core-hours at the measured first-chunk rates of {args.rates}"
+              + (f"; {unknown} cells not measured" if unknown else ""))
         return 0
     enable_compilation_cache()
     run_sweep(cells, out, devices=devices, progress=not args.no_progress)
@@ -186,6 +211,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="override any config value")
     p.add_argument("--tiny", action="store_true", help="tiny networks and budgets (smoke runs)")
     p.add_argument("--out", default=None, help="run folder (default: runs/SCENARIO-ALGO-TIME)")
+    p.add_argument("--finish", default=None, metavar="RUN_DIR",
+                   help="end a run where its newest checkpoint stands (final evaluation, summary, plot) without "
+                        "training the rest of its budget")
     p.add_argument("--resume", default=None, metavar="RUN_DIR", help="continue a killed run (with --episodes N: train a run further, to N episodes per seed)")
     p.add_argument("--workers", type=int, default=None,
                    help="processes, each vmapping its share of the seeds (one JAX process uses about one core; default 1)")
@@ -208,7 +236,10 @@ def build_parser() -> argparse.ArgumentParser:
                                                "experiments so that a cell two of them need runs once)")
     p.add_argument("--only", default=None, metavar="TEXT", help="only the cells whose path contains TEXT")
     p.add_argument("--devices", type=int, default=None, help="devices to shard each cell's seeds over (as train)")
-    p.add_argument("--dry-run", action="store_true", help="list the cells and their status, run nothing")
+    p.add_argument("--dry-run", action="store_true",
+                   help="list the cells, their status and estimated cost, run nothing")
+    p.add_argument("--rates", default=os.path.join("experiments", "protocol_rates.json"),
+                   help="with --dry-run: measured rates (experiments/calibrate_protocol.py) to estimate cell costs")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
     p.set_defaults(func=cmd_sweep)
 

@@ -240,6 +240,30 @@ def extend_budget(out_dir: str, episodes: int) -> None:
     write_json_atomic(path, meta)
 
 
+def finish_run(out_dir: str) -> dict[str, Any]:
+    """End the run in ``out_dir`` where its newest checkpoint stands, without training the rest of its budget (for a
+    curve that has been flat for long): the final greedy evaluation, summary.json (with ``stopped_at`` =
+    the episodes trained and ``budget``) and the plot, exactly as a run with that budget would end — the ε schedule
+    counts episodes from the start, so it does not depend on the budget."""
+    if is_finished(out_dir):
+        raise ValueError(f"{out_dir} has already finished (summary.json exists)")
+    trainer, state, chunk, meta = load_run(out_dir)
+    if chunk == 0:
+        raise ValueError(f"{out_dir} has no checkpoint yet: nothing to finish (resume it instead)")
+    _truncate_metrics(os.path.join(out_dir, "metrics.csv"), chunk * trainer.rounds_per_chunk)
+    with open(os.path.join(out_dir, "progress.json")) as f:
+        wall = float(json.load(f)["wall_seconds"])
+    budget = trainer.config.episodes
+    summary = _finish(trainer, state, out_dir, meta, wall)
+    summary.update(stopped_at=summary["episodes"], budget=budget)
+    write_json_atomic(os.path.join(out_dir, "summary.json"), summary)
+    return summary
+
+
+def is_finished(out_dir: str) -> bool:
+    return os.path.exists(os.path.join(out_dir, "summary.json"))
+
+
 def change_diverged_settings(out_dir: str, assignments: list[str]) -> None:
     """Change settings (``key=value`` strings, as ``--set``) of a run that stopped because it diverged, so
     that it continues from its last good checkpoint with them. The parameter shapes must stay the same

@@ -46,13 +46,26 @@ class Cell:
     seeds: int
     episodes: int
     tiny: bool = False
+    scale_schedules: bool = False  # a budget cut shortens the warm-up and ε schedule in proportion
 
     @property
     def path(self) -> str:
         return os.path.join(self.scenario, self.method.name, f"seeds{self.first_seed}-{self.first_seed + self.seeds}")
 
     def config(self) -> TrainConfig:
-        return self.method.config(self.scenario, self.tiny).override(episodes=self.episodes)
+        config = self.method.config(self.scenario, self.tiny)
+        changes: dict[str, Any] = {"episodes": self.episodes}
+        if self.scale_schedules and self.episodes < config.episodes:
+            fraction = self.episodes / config.episodes
+            for name in SCHEDULE_SETTINGS:
+                if getattr(config, name) > 0:
+                    changes[name] = max(1, round(getattr(config, name) * fraction))
+        return config.override(**changes)
+
+
+# Settings counted in episodes that place a phase of the run (the replay warm-up before training, ε's start and
+# length): a shortened budget keeps each phase at the same fraction of the run.
+SCHEDULE_SETTINGS = ("start_train_episodes", "eps_decay_start", "eps_decay_episodes")
 
 
 TOMACVF = Method("tomacvf", "tomacvf", label="ToMacVF")
@@ -90,23 +103,63 @@ EXPERIMENTS: dict[str, tuple[tuple[Method, ...], tuple[str, ...]]] = {
 }
 
 
+def method_by_name(name: str) -> Method:
+    """The sweep method called ``name`` (its folder name)."""
+    methods = {m.name: m for ms, _ in EXPERIMENTS.values() for m in ms}
+    if name not in methods:
+        raise ValueError(f"unknown method {name!r}; valid methods: {sorted(methods)}")
+    return methods[name]
+
+
+def family(scenario: str) -> str:
+    """``boxpushing``, ``overcooked`` or ``warehouse``."""
+    return scenario.rsplit("-", 1)[0]
+
+
 @dataclasses.dataclass(frozen=True)
 class Protocol:
-    """How many seeds and episodes every cell gets."""
+    """How many seeds and episodes every cell gets, and which cells it leaves out (with the reason)."""
 
     name: str
     seeds: int
-    max_episodes: int | None  # None: each scenario's paper budget; else at most this many episodes per seed
+    budgets: tuple[tuple[str, int], ...]  # (scenario family, at most this many episodes per seed); () = the paper's
     about: str
     tiny: bool = False  # tiny networks and budgets (a smoke run of the sweep's plumbing)
+    scale_schedules: bool = False  # see Cell.scale_schedules
+    not_run: tuple[tuple[str, str, str], ...] = ()  # (method name, scenario family, why the cell is not run)
+
+    def budget(self, scenario: str, paper_budget: int) -> int:
+        return min(paper_budget, dict(self.budgets).get(family(scenario), paper_budget))
+
+    def not_run_reason(self, method: str, scenario: str) -> str | None:
+        for name, fam, why in self.not_run:
+            if name == method and fam == family(scenario):
+                return why
+        return None
 
 
+_DDRQN_OC_WHY = ("one gradient step over 64 episodes x 201 entries x 2,744 joint actions takes ~0.5 s here, ~0.6 "
+                 "training episodes per second per seed: 4 seeds x 3K episodes would take ~6 h per cell, 33 h for "
+                 "the six cells")
 PROTOCOLS = {
-    "paper": Protocol("paper", 20, None, "20 seeds, the paper's budget per scenario (a GPU or a long campaign)"),
-    "cpu": Protocol("cpu", 4, 10_000, "4 seeds, at most 10K episodes per seed (the paper's 40K-120K), for a 2-core CPU"),
-    "smoke": Protocol("smoke", 1, 32, "1 seed, 32 episodes, tiny networks: checks a sweep's plumbing in minutes",
-                      tiny=True),
+    "paper": Protocol("paper", 20, (), "20 seeds, the paper's budget per scenario (a GPU or a long campaign)"),
+    "cpu": Protocol(
+        "cpu", 4, (("boxpushing", 10_000), ("warehouse", 5_000), ("overcooked", 3_000)),
+        "4 seeds; at most 10K episodes per seed on Box Pushing, 5K on Warehouse, 3K on Overcooked (the paper's "
+        "40K-120K), warm-up and exploration shortened in proportion; the DDRQNs not run on Overcooked: ~12 hours "
+        "of a 2-core CPU", scale_schedules=True,
+        not_run=(("maccen_ddrqn", "overcooked", _DDRQN_OC_WHY), ("macdec_ddrqn", "overcooked", _DDRQN_OC_WHY))),
+    "smoke": Protocol("smoke", 1, (("boxpushing", 32), ("warehouse", 32), ("overcooked", 32)),
+                      "1 seed, 32 episodes, tiny networks: checks a sweep's plumbing in minutes", tiny=True),
 }
+
+
+def not_run_cells(experiment: str, protocol: str) -> list[tuple[str, str, str]]:
+    """(scenario, method name, reason) of each cell of ``experiment`` that ``protocol`` leaves out."""
+    proto = PROTOCOLS[protocol]
+    methods, scenarios = EXPERIMENTS[experiment]
+    return [(s, m.name, why) for s in scenarios for m in methods
+            if (why := proto.not_run_reason(m.name, s)) is not None]
 
 
 def plan(experiment: str, protocol: str = "cpu", seeds: tuple[int, int] | None = None,
@@ -123,10 +176,10 @@ def plan(experiment: str, protocol: str = "cpu", seeds: tuple[int, int] | None =
     cells = []
     for scenario in scenarios:
         for method in methods:
-            budget = method.config(scenario, proto.tiny).episodes
-            if proto.max_episodes is not None:
-                budget = min(budget, proto.max_episodes)
-            cells.append(Cell(experiment, method, scenario, first, count, budget, proto.tiny))
+            if proto.not_run_reason(method.name, scenario) is not None:
+                continue
+            budget = proto.budget(scenario, method.config(scenario, proto.tiny).episodes)
+            cells.append(Cell(experiment, method, scenario, first, count, budget, proto.tiny, proto.scale_schedules))
     if only is not None:
         cells = [c for c in cells if only in c.path]
         if not cells:
@@ -156,6 +209,32 @@ def cell_status(out_dir: str, cell: Cell) -> str:
         raise ValueError(f"{path} holds another run than the sweep's cell ({'; '.join(differ)}); move it away or use "
                          "another --out")
     return "done" if os.path.exists(os.path.join(path, "summary.json")) else "interrupted"
+
+
+def load_rates(path: str) -> dict[str, dict]:
+    """Measured training rates per ``"method@scenario"`` (``experiments/calibrate_protocol.py``'s file); {} if none."""
+    import json
+
+    if not os.path.exists(path):
+        return {}
+    with open(path) as f:
+        return json.load(f)
+
+
+def estimate_seconds(cell: Cell, rates: dict[str, dict]) -> tuple[float, str] | None:
+    """Seconds of one core that ``cell`` needs at a measured rate (seed-episodes per second), and the pair measured:
+    the cell's own (method, scenario), else the same method on the nearest measured scenario of its family (Box
+    Pushing grids by size, Overcooked and Warehouse maps by letter); None when the method was not measured there."""
+    key = f"{cell.method.name}@{cell.scenario}"
+    if key not in rates:
+        fam = family(cell.scenario)
+        order = BOX_PUSHING if fam == "boxpushing" else OVERCOOKED if fam == "overcooked" else WAREHOUSE
+        here = order.index(cell.scenario) if cell.scenario in order else 0
+        measured = [s for s in order if f"{cell.method.name}@{s}" in rates]
+        if not measured:
+            return None
+        key = f"{cell.method.name}@{min(measured, key=lambda s: abs(order.index(s) - here))}"
+    return cell.seeds * cell.episodes / rates[key]["episodes_per_s"], key
 
 
 def run_sweep(cells: list[Cell], out_dir: str, devices: int = 1, progress: bool = True, log=print) -> dict[str, str]:

@@ -22,5 +22,13 @@ def test_results_page_from_run_folders(tmp_path):
     assert (tmp_path / "out" / "ablation.png").stat().st_size > 5000 and (tmp_path / "out" / "ablation.pdf").exists()
     assert "| ToMacVF | 2 | 96 | **145.0 ± 5.0** |" in page  # the best mean in bold
     assert "| ToMacVF w/o ATPG | 2 | 96 | 105.0 ± 5.0 |" in page
-    assert "| ToMacVF_VDN | not run |" in page  # the mixers experiment has only ToMacVF (QMIX) on Overcooked-A
+    assert "| ToMacVF_VDN | not finished yet |" in page  # the mixers experiment has only ToMacVF (QMIX) on Overcooked-A
     assert "IQM" in page.split("## mixers")[0] and "not every method has finished" in page.split("## mixers")[1]
+
+
+def test_cells_a_protocol_leaves_out_are_listed_with_the_reason(tmp_path):
+    sweep = tmp_path / "cpu"
+    _fake_run(sweep / "overcooked-A" / "tomacvf" / "seeds0-2", 0, [150.0, 160.0])
+    page = pathlib.Path(write_page(str(sweep), str(tmp_path / "out"), ["overcooked"])).read_text()
+    assert "| Mac-Cen-DDRQN | not run: one gradient step over 64 episodes" in page  # the folder name is the protocol
+    assert "| Mac-IAICC | not finished yet |" in page

@@ -90,3 +90,45 @@ def test_a_real_cell_runs_then_is_skipped(tmp_path):
     summary = json.loads((tmp_path / cells[0].path / "summary.json").read_text())
     assert summary["episodes"] == 32 and summary["seeds"] == 1
     assert run_sweep(cells, str(tmp_path), progress=False, log=lambda *_: None) == {cells[0].path: "skipped"}
+
+
+def test_cost_estimates_use_the_cells_own_rate_else_the_nearest_measured_scenario():
+    from jaxmac.sweep import estimate_seconds, method_by_name
+
+    rates = {"tomacvf@boxpushing-6x6": {"episodes_per_s": 20.0},
+             "tomacvf@boxpushing-14x14": {"episodes_per_s": 5.0},
+             "mac_cac@overcooked-B": {"episodes_per_s": 40.0}}
+    cells = {c.path.split("/seeds")[0]: c for c in plan("bp", "cpu") + plan("overcooked", "cpu")}
+    own = cells["boxpushing-6x6/tomacvf"]
+    assert estimate_seconds(own, rates) == (own.seeds * own.episodes / 20.0, "tomacvf@boxpushing-6x6")
+    # 12x12 is nearer 14x14 than 6x6; 8x8 nearer 6x6
+    assert estimate_seconds(cells["boxpushing-12x12/tomacvf"], rates)[1] == "tomacvf@boxpushing-14x14"
+    assert estimate_seconds(cells["boxpushing-8x8/tomacvf"], rates)[1] == "tomacvf@boxpushing-6x6"
+    assert estimate_seconds(cells["overcooked-A/mac_cac"], rates)[1] == "mac_cac@overcooked-B"
+    assert estimate_seconds(cells["overcooked-A/avf"], rates) is None  # not measured anywhere
+    assert method_by_name("tomacvf-wo-sjert").overrides[0] == ("buffer", "mac_jert")
+    with pytest.raises(ValueError, match="unknown method 'qmix'.*tomacvf-qplex"):
+        method_by_name("qmix")
+
+
+def test_the_cpu_protocol_shortens_budgets_and_schedules_in_proportion_and_says_what_it_leaves_out():
+    from jaxmac.config import scenario_config
+    from jaxmac.sweep import not_run_cells
+
+    cells = {c.path.split("/seeds")[0]: c for c in plan("overcooked", "cpu")}
+    cell = cells["overcooked-A/tomacvf"]
+    paper = scenario_config("overcooked-A")
+    config = cell.config()
+    fraction = config.episodes / paper.episodes
+    assert config.episodes < paper.episodes and fraction == cell.episodes / paper.episodes
+    assert config.eps_decay_episodes == round(paper.eps_decay_episodes * fraction)
+    assert config.lr == paper.lr and config.target_update_episodes == paper.target_update_episodes
+    iaicc = cells["overcooked-A/mac_iaicc"].config()
+    assert iaicc.eps_decay_episodes == round(scenario_config("overcooked-A", "mac_iaicc").eps_decay_episodes * fraction)
+    assert "overcooked-A/maccen_ddrqn" not in cells and "overcooked-A/macdec_ddrqn" not in cells
+    left_out = not_run_cells("overcooked", "cpu")
+    assert {(s, m) for s, m, _ in left_out} == {(s, m) for s in ("overcooked-A", "overcooked-B", "overcooked-C")
+                                                 for m in ("maccen_ddrqn", "macdec_ddrqn")}
+    # the paper protocol changes nothing but the seeds
+    paper_cell = [c for c in plan("overcooked", "paper") if c.path.startswith("overcooked-A/tomacvf/")][0]
+    assert paper_cell.config() == paper and paper_cell.seeds == 20

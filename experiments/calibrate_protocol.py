@@ -1,0 +1,89 @@
+"""Measure what a sweep cell costs on this machine, to size the ``cpu`` protocol.
+
+    taskset -c 0 python experiments/calibrate_protocol.py --pairs tomacvf@overcooked-B maccen_ddrqn@boxpushing-14x14
+    taskset -c 0 python experiments/calibrate_protocol.py --experiment bp overcooked   # every (method, scenario)
+
+For each (method, scenario) — a method is a sweep method name (``jaxmac.sweep``: ``tomacvf``, ``tomacvf-qplex``,
+``tomacvf-wo-sjert``, ``mac_cac`` ...) — one process compiles the method's training chunk for ``--seeds`` vmapped
+seeds, fills the ring to where gradient steps run, and times ``--chunks`` chunks (``benchmarks/train_throughput.py``'s
+measurement). The training episodes per wall-second of all seeds go to ``--out`` (JSON, one entry per pair, kept
+between calls: pairs already there are skipped). Run it held to one core (``taskset``) with nothing else heavy on that
+core: the rate is then per core. The first chunks are the slow end of a run where episodes are longest at the start
+(Box Pushing, Warehouse), so estimates from them are upper bounds there.
+
+``jaxmac sweep EXPERIMENT --dry-run`` reads the file to estimate each cell's core-hours.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "benchmarks"))
+
+DEFAULT_OUT = os.path.join(os.path.dirname(os.path.abspath(__file__)), "protocol_rates.json")
+
+
+def method_assignments(method) -> list[str]:
+    """A sweep method's overrides as ``--set`` strings."""
+    return [f"{k}={str(v).lower() if isinstance(v, bool) else v}" for k, v in method.overrides]
+
+
+def measure_pair(method_name: str, scenario: str, seeds: int, chunks: int) -> dict:
+    from train_throughput import run_workers
+
+    from jaxmac.sweep import method_by_name
+
+    method = method_by_name(method_name)
+    (m,) = run_workers(method.algorithm, scenario, seeds, 1, chunks, method_assignments(method))
+    return {"method": method_name, "scenario": scenario, "seeds": seeds, "chunks": chunks,
+            "episodes_per_s": m["episodes"] / m["wall_s"], "episodes_per_cpu_s": m["episodes"] / m["cpu_s"],
+            "env_steps_per_episode": m["env_steps"] / m["episodes"],
+            "compile_s": m["compile_s"], "measured": time.strftime("%Y-%m-%d %H:%M")}
+
+
+def main(argv=None) -> None:
+    from jaxmac.sweep import EXPERIMENTS, plan
+
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--pairs", nargs="*", default=[], metavar="METHOD@SCENARIO")
+    p.add_argument("--experiment", nargs="*", default=[], choices=list(EXPERIMENTS),
+                   help="every (method, scenario) of these experiments")
+    p.add_argument("--seeds", type=int, default=4)
+    p.add_argument("--chunks", type=int, default=1)
+    p.add_argument("--out", default=DEFAULT_OUT)
+    args = p.parse_args(argv)
+    pairs = []
+    for text in args.pairs:
+        method, sep, scenario = text.partition("@")
+        if not sep:
+            raise SystemExit(f"--pairs expects METHOD@SCENARIO, got {text!r}")
+        pairs.append((method, scenario))
+    for experiment in args.experiment:
+        pairs += [(c.method.name, c.scenario) for c in plan(experiment, "cpu")]
+    if not pairs:
+        raise SystemExit("nothing to measure: give --pairs or --experiment")
+    rates = {}
+    if os.path.exists(args.out):
+        with open(args.out) as f:
+            rates = json.load(f)
+    for method, scenario in dict.fromkeys(pairs):
+        key = f"{method}@{scenario}"
+        if key in rates:
+            print(f"{key}: {rates[key]['episodes_per_s']:.2f} episodes/s (kept)")
+            continue
+        rates[key] = measure_pair(method, scenario, args.seeds, args.chunks)
+        print(f"{key}: {rates[key]['episodes_per_s']:.2f} episodes/s over {args.seeds} seeds "
+              f"({rates[key]['env_steps_per_episode']:.0f} steps per episode), compile {rates[key]['compile_s']:.0f} s",
+              flush=True)
+        tmp = args.out + ".tmp"
+        with open(tmp, "w") as f:
+            json.dump(dict(sorted(rates.items())), f, indent=1)
+        os.replace(tmp, args.out)
+
+
+if __name__ == "__main__":
+    main()
