@@ -10,6 +10,10 @@ starts the others, one after another in this process, each with its seeds vmappe
 ``--seeds 4:8`` adds four seeds to a sweep run with ``--seeds 4``: their cells are new folders
 (``…/seeds4-8``) that the statistics merge with the first ones.
 
+Several sweep processes may work through one folder at once (e.g. one per core: ``taskset -c 0 jaxmac sweep bp &
+taskset -c 1 jaxmac sweep bp``): each takes a cell by creating its lock file, and leaves cells another live process
+holds.
+
 Folder layout: ``OUT/<scenario>/<method>/seeds<A>-<B>/`` (a run folder).
 """
 
@@ -247,15 +251,67 @@ def run_sweep(cells: list[Cell], out_dir: str, devices: int = 1, progress: bool 
     for k, cell in enumerate(cells):
         status = cell_status(out_dir, cell)
         path = os.path.join(out_dir, cell.path)
-        log(f"[{k + 1}/{len(cells)}] {cell.path}: {status}")
         if status == "done":
+            log(f"[{k + 1}/{len(cells)}] {cell.path}: done")
             done[cell.path] = "skipped"
             continue
-        if status == "interrupted":
-            resume_run(path, progress=progress, devices=devices)
-            done[cell.path] = "resumed"
-        else:
-            train_run(cell.config(), cell.seeds, path, seed_offset=cell.first_seed, progress=progress, devices=devices)
-            done[cell.path] = "trained"
+        if not claim_cell(path):
+            log(f"[{k + 1}/{len(cells)}] {cell.path}: being trained by another sweep process")
+            done[cell.path] = "busy"
+            continue
+        log(f"[{k + 1}/{len(cells)}] {cell.path}: {status}")
+        try:
+            if status == "interrupted":
+                resume_run(path, progress=progress, devices=devices)
+                done[cell.path] = "resumed"
+            else:
+                train_run(cell.config(), cell.seeds, path, seed_offset=cell.first_seed, progress=progress,
+                          devices=devices)
+                done[cell.path] = "trained"
+        finally:
+            os.remove(os.path.join(path, LOCK))
         jax.clear_caches()  # the next cell compiles its own program
     return done
+
+
+LOCK = "sweep.lock"
+
+
+def claim_cell(path: str) -> bool:
+    """Take the cell folder ``path`` for this process (a lock file holding our host and process id), so that
+    several sweep processes — one per core, or per host on a shared disk — can work through one sweep folder
+    without training a cell twice. A lock left by a process of this host that no longer runs (killed) is taken
+    over; False if a live process holds it."""
+    import json
+    import socket
+
+    os.makedirs(path, exist_ok=True)
+    lock = os.path.join(path, LOCK)
+    me = {"host": socket.gethostname(), "pid": os.getpid()}
+    for _ in range(2):
+        try:
+            fd = os.open(lock, os.O_CREAT | os.O_EXCL | os.O_WRONLY)
+        except FileExistsError:
+            try:
+                with open(lock) as f:
+                    holder = json.load(f)
+            except (OSError, ValueError):  # being written, or removed meanwhile: treat as held
+                return False
+            if holder.get("host") != me["host"] or _alive(int(holder.get("pid", -1))):
+                return False
+            os.remove(lock)  # stale: its process is gone
+            continue
+        with os.fdopen(fd, "w") as f:
+            json.dump(me, f)
+        return True
+    return False
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return pid > 0
