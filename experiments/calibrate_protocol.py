@@ -11,6 +11,9 @@ between calls: pairs already there are skipped). Run it held to one core (``task
 core: the rate is then per core. The first chunks are the slow end of a run where episodes are longest at the start
 (Box Pushing, Warehouse), so estimates from them are upper bounds there.
 
+``--from-run METHOD@SCENARIO=RUN_DIR`` records instead the rate of a finished run folder trained with that
+method's settings (seeds × episodes / wall time: a whole run, exploration included).
+
 ``jaxmac sweep EXPERIMENT --dry-run`` reads the file to estimate each cell's core-hours.
 """
 
@@ -45,6 +48,28 @@ def measure_pair(method_name: str, scenario: str, seeds: int, chunks: int) -> di
             "compile_s": m["compile_s"], "measured": time.strftime("%Y-%m-%d %H:%M")}
 
 
+def rate_from_run(method_name: str, scenario: str, run_dir: str) -> dict:
+    """The rate of a finished run folder, refused if it was trained with other settings than the method's (its
+    budget and length buckets aside: buckets change the cost, not the result)."""
+    from jaxmac.config import TrainConfig
+    from jaxmac.sweep import method_by_name
+
+    with open(os.path.join(run_dir, "config.json")) as f:
+        held = TrainConfig.from_dict(json.load(f)["config"])
+    with open(os.path.join(run_dir, "summary.json")) as f:
+        summary = json.load(f)
+    wanted = method_by_name(method_name).config(scenario).flat_dict()
+    differ = {k: (held.flat_dict().get(k), v) for k, v in wanted.items()
+              if held.flat_dict().get(k) != v and k not in ("episodes", "length_buckets")}
+    if differ:
+        raise SystemExit(f"{run_dir} was not trained with {method_name}'s settings on {scenario}: {differ}")
+    note = "" if held.length_buckets == wanted["length_buckets"] else \
+        f" (length_buckets={held.length_buckets} there, {wanted['length_buckets']} now)"
+    return {"method": method_name, "scenario": scenario, "seeds": summary["seeds"],
+            "episodes_per_s": summary["seeds"] * summary["episodes"] / summary["wall_seconds"],
+            "source": f"{run_dir}: a whole run, seeds x episodes / wall time{note}"}
+
+
 def main(argv=None) -> None:
     from jaxmac.sweep import EXPERIMENTS, plan
 
@@ -52,6 +77,7 @@ def main(argv=None) -> None:
     p.add_argument("--pairs", nargs="*", default=[], metavar="METHOD@SCENARIO")
     p.add_argument("--experiment", nargs="*", default=[], choices=list(EXPERIMENTS),
                    help="every (method, scenario) of these experiments")
+    p.add_argument("--from-run", nargs="*", default=[], metavar="METHOD@SCENARIO=RUN_DIR")
     p.add_argument("--seeds", type=int, default=4)
     p.add_argument("--chunks", type=int, default=1)
     p.add_argument("--out", default=DEFAULT_OUT)
@@ -64,12 +90,20 @@ def main(argv=None) -> None:
         pairs.append((method, scenario))
     for experiment in args.experiment:
         pairs += [(c.method.name, c.scenario) for c in plan(experiment, "cpu")]
-    if not pairs:
-        raise SystemExit("nothing to measure: give --pairs or --experiment")
+    if not pairs and not args.from_run:
+        raise SystemExit("nothing to measure: give --pairs, --experiment or --from-run")
     rates = {}
     if os.path.exists(args.out):
         with open(args.out) as f:
             rates = json.load(f)
+    for text in args.from_run:
+        key, sep, run_dir = text.partition("=")
+        method, _, scenario = key.partition("@")
+        if not sep or not scenario:
+            raise SystemExit(f"--from-run expects METHOD@SCENARIO=RUN_DIR, got {text!r}")
+        rates[key] = rate_from_run(method, scenario, run_dir)
+        print(f"{key}: {rates[key]['episodes_per_s']:.2f} episodes/s ({rates[key]['source']})")
+        save(rates, args.out)
     for method, scenario in dict.fromkeys(pairs):
         key = f"{method}@{scenario}"
         if key in rates:
@@ -79,10 +113,18 @@ def main(argv=None) -> None:
         print(f"{key}: {rates[key]['episodes_per_s']:.2f} episodes/s over {args.seeds} seeds "
               f"({rates[key]['env_steps_per_episode']:.0f} steps per episode), compile {rates[key]['compile_s']:.0f} s",
               flush=True)
-        tmp = args.out + ".tmp"
-        with open(tmp, "w") as f:
-            json.dump(dict(sorted(rates.items())), f, indent=1)
-        os.replace(tmp, args.out)
+        save(rates, args.out)
+
+
+def save(rates: dict, path: str) -> None:
+    """Write ``rates`` over the file's entries (another calibration may have added some meanwhile)."""
+    if os.path.exists(path):
+        with open(path) as f:
+            rates = {**json.load(f), **rates}
+    tmp = path + ".tmp"
+    with open(tmp, "w") as f:
+        json.dump(dict(sorted(rates.items())), f, indent=1)
+    os.replace(tmp, path)
 
 
 if __name__ == "__main__":

@@ -142,17 +142,27 @@ class Protocol:
         return None
 
 
-_DDRQN_OC_WHY = ("one gradient step over 64 episodes x 201 entries x 2,744 joint actions takes ~0.5 s here, ~0.6 "
-                 "training episodes per second per seed: 4 seeds x 3K episodes would take ~6 h per cell, 33 h for "
-                 "the six cells")
+_SLOW_WHY = ("{what}: about {rate} training episodes per second of 4 seeds on one core here (whole {steps}-step "
+             "episodes, a gradient step per 64 env steps, as the original scripts): 4 seeds x {episodes} episodes "
+             "would take ~{hours} h per cell")
+_NOT_RUN_CPU = (
+    ("maccen_ddrqn", "overcooked", _SLOW_WHY.format(what="a step over 64 episodes x 201 entries x 2,744 joint actions",
+                                                    rate="0.6", steps=200, episodes="2K", hours=4)),
+    ("macdec_ddrqn", "overcooked", _SLOW_WHY.format(what="Mac-Cen-DDRQN's joint net plus per-agent nets", rate="< 0.6",
+                                                    steps=200, episodes="2K", hours="> 4")),
+    ("avf", "overcooked", _SLOW_WHY.format(what="recurrent per-agent Q over whole episodes", rate="0.56", steps=200,
+                                           episodes="2K", hours=4)),
+    ("avf", "warehouse", _SLOW_WHY.format(what="recurrent per-agent Q over whole episodes", rate="0.24 (Warehouse-E)",
+                                          steps=300, episodes="3K", hours=14)),
+)
 PROTOCOLS = {
     "paper": Protocol("paper", 20, (), "20 seeds, the paper's budget per scenario (a GPU or a long campaign)"),
     "cpu": Protocol(
-        "cpu", 4, (("boxpushing", 10_000), ("warehouse", 5_000), ("overcooked", 3_000)),
-        "4 seeds; at most 10K episodes per seed on Box Pushing, 5K on Warehouse, 3K on Overcooked (the paper's "
-        "40K-120K), warm-up and exploration shortened in proportion; the DDRQNs not run on Overcooked: ~12 hours "
-        "of a 2-core CPU", scale_schedules=True,
-        not_run=(("maccen_ddrqn", "overcooked", _DDRQN_OC_WHY), ("macdec_ddrqn", "overcooked", _DDRQN_OC_WHY))),
+        "cpu", 4, (("boxpushing", 4_000), ("warehouse", 3_000), ("overcooked", 2_000)),
+        "4 seeds; at most 4K episodes per seed on Box Pushing, 3K on Warehouse, 2K on Overcooked (the paper's "
+        "40K-120K), the warm-up and exploration schedules shortened in proportion; the value baselines not run where "
+        "their update makes a cell cost hours: about 12 hours of a 2-core CPU", scale_schedules=True,
+        not_run=_NOT_RUN_CPU),
     "smoke": Protocol("smoke", 1, (("boxpushing", 32), ("warehouse", 32), ("overcooked", 32)),
                       "1 seed, 32 episodes, tiny networks: checks a sweep's plumbing in minutes", tiny=True),
 }
