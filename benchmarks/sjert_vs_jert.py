@@ -94,14 +94,14 @@ def main(argv=None) -> None:
     sizes = view_bytes(cells[0].config())
     sjert, jert = rows[TOMACVF.label], rows[WO_SJERT.label]
     print(f"\n{args.scenario}, {count} seeds x {args.episodes} episodes, settings changed: {dict(changed) or 'none'}")
-    print("| buffer | final return | Welch p | wall s | episodes/s | gradient steps/s | stored bytes/episode "
+    print("| buffer | final return | Welch p | wall s (compile included) | episodes/s | gradient steps/s | stored bytes/episode "
           "| view bytes/episode |")
     print("|---|---|---|---|---|---|---|---|")
     for label, row, view in ((TOMACVF.label, sjert, sizes["sjert_views"]), (WO_SJERT.label, jert, sizes["jert_view"])):
         f = row["finals"]
-        se = f.std(ddof=1) / np.sqrt(len(f)) if len(f) > 1 else float("nan")
-        p_value = "–" if row is sjert else f"{welch_p(sjert['finals'], f):.3g}"
-        print(f"| {label} | {f.mean():.1f} ± {se:.1f} | {p_value} | {row['wall_s']:.0f} | {row['episodes_per_s']:.1f} "
+        final = f"{f.mean():.1f} ± {f.std(ddof=1) / np.sqrt(len(f)):.1f}" if len(f) > 1 else f"{f.mean():.1f}"
+        p_value = "–" if row is sjert or len(f) < 2 else f"{welch_p(sjert['finals'], f):.3g}"
+        print(f"| {label} | {final} | {p_value} | {row['wall_s']:.0f} | {row['episodes_per_s']:.1f} "
               f"| {row['updates_per_s']:.2f} | {sizes['slot']:,} | {view:,} |")
     png = os.path.join(args.out, args.scenario, "sjert_vs_jert.png")
     plot_curves([(label, r["episodes"], r["curves"]) for label, r in rows.items()], png,
