@@ -142,18 +142,18 @@ class Protocol:
         return None
 
 
-_SLOW_WHY = ("{what}: about {rate} training episodes per second of 4 seeds on one core here (whole {steps}-step "
-             "episodes, a gradient step per 64 env steps, as the original scripts): 4 seeds x {episodes} episodes "
-             "would take ~{hours} h per cell")
+_SLOW_WHY = ("{what}: {rate} training episodes per second of 4 seeds on one core here (whole {steps}-step episodes, "
+             "a gradient step per 64 env steps, as the original scripts): 4 seeds x {episodes} episodes would take "
+             "{hours} per cell")
 _NOT_RUN_CPU = (
     ("maccen_ddrqn", "overcooked", _SLOW_WHY.format(what="a step over 64 episodes x 201 entries x 2,744 joint actions",
-                                                    rate="0.6", steps=200, episodes="2K", hours=4)),
-    ("macdec_ddrqn", "overcooked", _SLOW_WHY.format(what="Mac-Cen-DDRQN's joint net plus per-agent nets", rate="< 0.6",
-                                                    steps=200, episodes="2K", hours="> 4")),
+                                                    rate="about 0.6", steps=200, episodes="2K", hours="~4 h")),
+    ("macdec_ddrqn", "overcooked", _SLOW_WHY.format(what="Mac-Cen-DDRQN's joint net plus per-agent nets",
+                                                    rate="under 0.6", steps=200, episodes="2K", hours="over 4 h")),
     ("avf", "overcooked", _SLOW_WHY.format(what="recurrent per-agent Q over whole episodes", rate="0.56", steps=200,
-                                           episodes="2K", hours=4)),
+                                           episodes="2K", hours="~4 h")),
     ("avf", "warehouse", _SLOW_WHY.format(what="recurrent per-agent Q over whole episodes", rate="0.24 (Warehouse-E)",
-                                          steps=300, episodes="3K", hours=14)),
+                                          steps=300, episodes="3K", hours="~14 h")),
 )
 PROTOCOLS = {
     "paper": Protocol("paper", 20, (), "20 seeds, the paper's budget per scenario (a GPU or a long campaign)"),
