@@ -30,5 +30,5 @@ def test_cells_a_protocol_leaves_out_are_listed_with_the_reason(tmp_path):
     sweep = tmp_path / "cpu"
     _fake_run(sweep / "overcooked-A" / "tomacvf" / "seeds0-2", 0, [150.0, 160.0])
     page = pathlib.Path(write_page(str(sweep), str(tmp_path / "out"), ["overcooked"])).read_text()
-    assert "| Mac-Cen-DDRQN | not run: one gradient step over 64 episodes" in page  # the folder name is the protocol
+    assert "| Mac-Cen-DDRQN | not run: a step over 64 episodes" in page  # the folder name is the protocol
     assert "| Mac-IAICC | not finished yet |" in page

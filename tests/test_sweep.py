@@ -14,8 +14,8 @@ from jaxmac.sweep import EXPERIMENTS, cell_status, plan, run_sweep
 def test_the_experiments_have_the_papers_cells():
     bp = plan("bp")
     assert len(bp) == 5 * 7 and {c.scenario for c in bp} == {f"boxpushing-{g}x{g}" for g in (6, 8, 10, 12, 14)}
-    warehouse = {c.method.algorithm for c in plan("warehouse")}
-    assert "maccen_ddrqn" not in warehouse and "macdec_ddrqn" not in warehouse and len(plan("warehouse")) == 5 * 5
+    warehouse = {c.method.algorithm for c in plan("warehouse", "paper")}
+    assert "maccen_ddrqn" not in warehouse and "macdec_ddrqn" not in warehouse and len(plan("warehouse", "paper")) == 25
     ablation = plan("ablation")
     assert {c.scenario for c in ablation} == {"overcooked-B", "warehouse-E"} and len(ablation) == 8
     wo_both = next(c for c in ablation if c.method.name == "tomacvf-wo-both").config()
@@ -26,7 +26,8 @@ def test_the_experiments_have_the_papers_cells():
     assert {c.path for c in plan("overcooked")} & {c.path for c in ablation} == {"overcooked-B/tomacvf/seeds0-4"}
     paper = plan("bp", "paper")
     assert all(c.seeds == 20 and c.episodes == 40_000 for c in paper)
-    assert all(c.seeds == 4 and c.episodes == 10_000 for c in bp)
+    assert all(c.seeds == 4 and c.episodes == 4_000 for c in bp)
+    assert len(plan("warehouse")) == 5 * 4  # the cpu protocol leaves AVF out on Warehouse
 
 
 def test_seed_ranges_and_filters():
@@ -105,7 +106,7 @@ def test_cost_estimates_use_the_cells_own_rate_else_the_nearest_measured_scenari
     assert estimate_seconds(cells["boxpushing-12x12/tomacvf"], rates)[1] == "tomacvf@boxpushing-14x14"
     assert estimate_seconds(cells["boxpushing-8x8/tomacvf"], rates)[1] == "tomacvf@boxpushing-6x6"
     assert estimate_seconds(cells["overcooked-A/mac_cac"], rates)[1] == "mac_cac@overcooked-B"
-    assert estimate_seconds(cells["overcooked-A/avf"], rates) is None  # not measured anywhere
+    assert estimate_seconds(cells["overcooked-A/mac_iaicc"], rates) is None  # not measured anywhere
     assert method_by_name("tomacvf-wo-sjert").overrides[0] == ("buffer", "mac_jert")
     with pytest.raises(ValueError, match="unknown method 'qmix'.*tomacvf-qplex"):
         method_by_name("qmix")
@@ -128,7 +129,8 @@ def test_the_cpu_protocol_shortens_budgets_and_schedules_in_proportion_and_says_
     assert "overcooked-A/maccen_ddrqn" not in cells and "overcooked-A/macdec_ddrqn" not in cells
     left_out = not_run_cells("overcooked", "cpu")
     assert {(s, m) for s, m, _ in left_out} == {(s, m) for s in ("overcooked-A", "overcooked-B", "overcooked-C")
-                                                 for m in ("maccen_ddrqn", "macdec_ddrqn")}
+                                                 for m in ("maccen_ddrqn", "macdec_ddrqn", "avf")}
+    assert all("per cell" in why for _, _, why in left_out)
     # the paper protocol changes nothing but the seeds
     paper_cell = [c for c in plan("overcooked", "paper") if c.path.startswith("overcooked-A/tomacvf/")][0]
     assert paper_cell.config() == paper and paper_cell.seeds == 20
