@@ -30,9 +30,9 @@ sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."
 DEFAULT_OUT = os.path.join(os.path.dirname(os.path.abspath(__file__)), "protocol_rates.json")
 
 
-def method_assignments(method) -> list[str]:
-    """A sweep method's overrides as ``--set`` strings."""
-    return [f"{k}={str(v).lower() if isinstance(v, bool) else v}" for k, v in method.overrides]
+def method_assignments(method, scenario: str) -> list[str]:
+    """A sweep method's overrides on ``scenario`` as ``--set`` strings."""
+    return [f"{k}={str(v).lower() if isinstance(v, bool) else v}" for k, v in method.overrides_for(scenario).items()]
 
 
 def measure_pair(method_name: str, scenario: str, seeds: int, chunks: int) -> dict:
@@ -41,7 +41,7 @@ def measure_pair(method_name: str, scenario: str, seeds: int, chunks: int) -> di
     from jaxmac.sweep import method_by_name
 
     method = method_by_name(method_name)
-    (m,) = run_workers(method.algorithm, scenario, seeds, 1, chunks, method_assignments(method))
+    (m,) = run_workers(method.algorithm, scenario, seeds, 1, chunks, method_assignments(method, scenario))
     return {"method": method_name, "scenario": scenario, "seeds": seeds, "chunks": chunks,
             "episodes_per_s": m["episodes"] / m["wall_s"], "episodes_per_cpu_s": m["episodes"] / m["cpu_s"],
             "env_steps_per_episode": m["env_steps"] / m["episodes"],

@@ -1,7 +1,8 @@
 """Statistics of a sweep's results: final returns per seed, per-scenario comparisons, aggregates over scenarios.
 
 The paper's metric for a run is its *final return*: the evaluation return (greedy for the value learners, the
-policy's for the actor-critics, as ``metrics.csv``'s ``eval_disc_return``) averaged over the run's last 10
+policy's for the actor-critics, as ``metrics.csv``'s ``eval_disc_return``; on Warehouse the undiscounted
+``eval_return``, see ``return_column``) averaged over the run's last 10
 evaluations, per seed. Per scenario every method gets mean ± s.e. over seeds, a bootstrap 95 % confidence interval
 of the mean (``scipy.stats.bootstrap``), the fraction of the scenario's ceiling (the optimal return on Box Pushing,
 the scripted policies' elsewhere) and Welch's t-test p-value against the reference method (ToMacVF;
@@ -36,6 +37,13 @@ CEILINGS = {
 FINAL_POINTS = 10  # the final return averages a run's last this many evaluations
 
 
+def return_column(scenario: str) -> str:
+    """The ``metrics.csv`` column a scenario's results are read from: the discounted evaluation return, except on
+    Warehouse, whose returns are undiscounted (γ 1), so that a run learning with another γ (``discount``) is
+    compared on the same measure."""
+    return "eval_return" if scenario.startswith("warehouse") else "eval_disc_return"
+
+
 @dataclasses.dataclass
 class CellResult:
     """One (scenario, method) of a sweep, its seed ranges merged."""
@@ -62,7 +70,7 @@ def load_run_result(run_dir: str) -> tuple[list[int], np.ndarray, np.ndarray, di
     """(seed ids, episodes [P], curves [seeds, P], summary) of a finished run folder."""
     with open(os.path.join(run_dir, "summary.json")) as f:
         summary = json.load(f)
-    episodes, curves = read_eval_curves(os.path.join(run_dir, "metrics.csv"))
+    episodes, curves = read_eval_curves(os.path.join(run_dir, "metrics.csv"), return_column(summary["scenario"]))
     first = summary.get("seed_offset", 0)
     return list(range(first, first + summary["seeds"])), episodes, curves, summary
 

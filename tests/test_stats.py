@@ -76,16 +76,19 @@ def test_aggregate_iqm_and_probability_of_improvement():
         aggregate(results, scen + ["warehouse-A"], ["tomacvf"])
 
 
-def _fake_run(path, first, finals_per_seed, points=12, budget=96):
+def _fake_run(path, first, finals_per_seed, points=12, budget=96, undiscounted_extra=0.0):
+    """A finished run folder at ``<sweep>/<scenario>/<method>/seeds<A>-<B>``; its undiscounted evaluation returns
+    are the discounted ones plus ``undiscounted_extra``."""
     path.mkdir(parents=True)
     with open(path / "metrics.csv", "w", newline="") as f:
         w = csv.writer(f)
-        w.writerow(["seed", "round", "episodes", "eval_disc_return"])
+        w.writerow(["seed", "round", "episodes", "eval_disc_return", "eval_return"])
         for k, final in enumerate(finals_per_seed):
             for p in range(points):
-                w.writerow([first + k, p, 8 * (p + 1), final if p >= points - 10 else -100.0])
-    (path / "summary.json").write_text(json.dumps({"seeds": len(finals_per_seed), "seed_offset": first,
-                                                   "episodes": budget, "wall_seconds": 5.0}))
+                value = final if p >= points - 10 else -100.0
+                w.writerow([first + k, p, 8 * (p + 1), value, value + undiscounted_extra])
+    (path / "summary.json").write_text(json.dumps({"scenario": path.parent.parent.name, "seeds": len(finals_per_seed),
+                                                   "seed_offset": first, "episodes": budget, "wall_seconds": 5.0}))
 
 
 def test_load_sweep_merges_seed_ranges_and_skips_unfinished(tmp_path):
@@ -100,3 +103,12 @@ def test_load_sweep_merges_seed_ranges_and_skips_unfinished(tmp_path):
     _fake_run(tmp_path / "boxpushing-6x6" / "tomacvf" / "seeds1-2", 1, [5.0])
     with pytest.raises(ValueError, match="seed ranges overlap"):
         load_sweep(str(tmp_path))
+
+
+def test_warehouse_is_compared_on_undiscounted_returns_whatever_gamma_a_run_learned_with(tmp_path):
+    # Warehouse's returns (and ceilings) are undiscounted: a run learning with γ 0.99 reports discounted ones too
+    _fake_run(tmp_path / "warehouse-A" / "tomacvf-tuned" / "seeds0-2", 0, [300.0, 320.0], undiscounted_extra=200.0)
+    _fake_run(tmp_path / "overcooked-A" / "tomacvf" / "seeds0-2", 0, [30.0, 50.0], undiscounted_extra=7.0)
+    results = load_sweep(str(tmp_path))
+    np.testing.assert_allclose(results[("warehouse-A", "tomacvf-tuned")].finals, [500.0, 520.0])
+    np.testing.assert_allclose(results[("overcooked-A", "tomacvf")].finals, [30.0, 50.0])

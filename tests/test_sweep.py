@@ -13,9 +13,9 @@ from jaxmac.sweep import EXPERIMENTS, cell_status, plan, run_sweep
 
 def test_the_experiments_have_the_papers_cells():
     bp = plan("bp")
-    assert len(bp) == 5 * 7 and {c.scenario for c in bp} == {f"boxpushing-{g}x{g}" for g in (6, 8, 10, 12, 14)}
+    assert len(bp) == 5 * 8 and {c.scenario for c in bp} == {f"boxpushing-{g}x{g}" for g in (6, 8, 10, 12, 14)}
     warehouse = {c.method.algorithm for c in plan("warehouse", "paper")}
-    assert "maccen_ddrqn" not in warehouse and "macdec_ddrqn" not in warehouse and len(plan("warehouse", "paper")) == 25
+    assert "maccen_ddrqn" not in warehouse and "macdec_ddrqn" not in warehouse and len(plan("warehouse", "paper")) == 30
     ablation = plan("ablation")
     assert {c.scenario for c in ablation} == {"overcooked-B", "warehouse-E"} and len(ablation) == 8
     wo_both = next(c for c in ablation if c.method.name == "tomacvf-wo-both").config()
@@ -27,11 +27,27 @@ def test_the_experiments_have_the_papers_cells():
     paper = plan("bp", "paper")
     assert all(c.seeds == 20 and c.episodes == 40_000 for c in paper)
     assert all(c.seeds == 4 and c.episodes == 4_000 for c in bp)
-    assert len(plan("warehouse")) == 5 * 4  # the cpu protocol leaves AVF out on Warehouse
+    assert len(plan("warehouse")) == 5 * 5  # the cpu protocol leaves AVF out on Warehouse
+
+
+def test_tuned_tomacvf_changes_only_its_settings_per_scenario_and_family():
+    from jaxmac.config import scenario_config
+    from jaxmac.sweep import method_by_name
+
+    tuned = method_by_name("tomacvf-tuned")
+    expected = {"boxpushing-6x6": {"overestimate_weight": 0.3, "updates_per_round": 4},
+                "boxpushing-12x12": {"overestimate_weight": 0.3, "updates_per_round": 12},
+                "warehouse-C": {"discount": 0.99}, "overcooked-B": {"target_update_episodes": 128}}
+    for scenario, changes in expected.items():
+        own, config = scenario_config(scenario).flat_dict(), tuned.config(scenario)
+        # these settings take effect and nothing else differs from the scenario's own
+        assert {k: v for k, v in config.flat_dict().items() if own[k] != v} == changes, scenario
+        if scenario.startswith("boxpushing"):  # one gradient step per 4 collected episodes on every grid
+            assert config.num_envs == 4 * config.updates_per_round
 
 
 def test_seed_ranges_and_filters():
-    more = plan("bp", seeds=(4, 4), only="boxpushing-6x6/tomacvf")
+    more = plan("bp", seeds=(4, 4), only="boxpushing-6x6/tomacvf/")
     assert [c.path for c in more] == ["boxpushing-6x6/tomacvf/seeds4-8"] and more[0].first_seed == 4
     with pytest.raises(ValueError, match="unknown experiment 'bpp'; valid experiments: .*'bp'"):
         plan("bpp")
