@@ -14,12 +14,15 @@ core: the rate is then per core. The first chunks are the slow end of a run wher
 ``--from-run METHOD@SCENARIO=RUN_DIR`` records instead the rate of a finished run folder trained with that
 method's settings (seeds × episodes / wall time: a whole run, exploration included).
 
+``--from-sweep SWEEP_DIR`` does that for every finished cell of a sweep folder (``jaxmac sweep``'s).
+
 ``jaxmac sweep EXPERIMENT --dry-run`` reads the file to estimate each cell's core-hours.
 """
 
 from __future__ import annotations
 
 import argparse
+import glob
 import json
 import os
 import sys
@@ -50,9 +53,10 @@ def measure_pair(method_name: str, scenario: str, seeds: int, chunks: int) -> di
 
 def rate_from_run(method_name: str, scenario: str, run_dir: str) -> dict:
     """The rate of a finished run folder, refused if it was trained with other settings than the method's (its
-    budget and length buckets aside: buckets change the cost, not the result)."""
+    budget, the schedules a protocol scales with it and the length buckets aside: buckets change the cost, not the
+    result)."""
     from jaxmac.config import TrainConfig
-    from jaxmac.sweep import method_by_name
+    from jaxmac.sweep import SCHEDULE_SETTINGS, method_by_name
 
     with open(os.path.join(run_dir, "config.json")) as f:
         held = TrainConfig.from_dict(json.load(f)["config"])
@@ -60,7 +64,7 @@ def rate_from_run(method_name: str, scenario: str, run_dir: str) -> dict:
         summary = json.load(f)
     wanted = method_by_name(method_name).config(scenario).flat_dict()
     differ = {k: (held.flat_dict().get(k), v) for k, v in wanted.items()
-              if held.flat_dict().get(k) != v and k not in ("episodes", "length_buckets")}
+              if held.flat_dict().get(k) != v and k not in ("episodes", "length_buckets") + SCHEDULE_SETTINGS}
     if differ:
         raise SystemExit(f"{run_dir} was not trained with {method_name}'s settings on {scenario}: {differ}")
     note = "" if held.length_buckets == wanted["length_buckets"] else \
@@ -78,6 +82,8 @@ def main(argv=None) -> None:
     p.add_argument("--experiment", nargs="*", default=[], choices=list(EXPERIMENTS),
                    help="every (method, scenario) of these experiments")
     p.add_argument("--from-run", nargs="*", default=[], metavar="METHOD@SCENARIO=RUN_DIR")
+    p.add_argument("--from-sweep", metavar="SWEEP_DIR",
+                   help="--from-run for every finished cell of a sweep folder (<scenario>/<method>/seeds<A>-<B>)")
     p.add_argument("--seeds", type=int, default=4)
     p.add_argument("--chunks", type=int, default=1)
     p.add_argument("--out", default=DEFAULT_OUT)
@@ -90,8 +96,10 @@ def main(argv=None) -> None:
         pairs.append((method, scenario))
     for experiment in args.experiment:
         pairs += [(c.method.name, c.scenario) for c in plan(experiment, "cpu")]
+    if args.from_sweep:
+        args.from_run += sweep_cells(args.from_sweep)
     if not pairs and not args.from_run:
-        raise SystemExit("nothing to measure: give --pairs, --experiment or --from-run")
+        raise SystemExit("nothing to measure: give --pairs, --experiment, --from-run or --from-sweep")
     rates = {}
     if os.path.exists(args.out):
         with open(args.out) as f:
@@ -114,6 +122,18 @@ def main(argv=None) -> None:
               f"({rates[key]['env_steps_per_episode']:.0f} steps per episode), compile {rates[key]['compile_s']:.0f} s",
               flush=True)
         save(rates, args.out)
+
+
+def sweep_cells(sweep_dir: str) -> list[str]:
+    """``METHOD@SCENARIO=RUN_DIR`` of every finished cell of a sweep folder (one seed range per pair: the first)."""
+    found = {}
+    for summary in sorted(glob.glob(os.path.join(sweep_dir, "*", "*", "seeds*", "summary.json"))):
+        run_dir = os.path.dirname(summary)
+        method_dir, scenario_dir = os.path.dirname(run_dir), os.path.dirname(os.path.dirname(run_dir))
+        found.setdefault(f"{os.path.basename(method_dir)}@{os.path.basename(scenario_dir)}", run_dir)
+    if not found:
+        raise SystemExit(f"--from-sweep: no finished cell under {sweep_dir!r}")
+    return [f"{key}={run_dir}" for key, run_dir in found.items()]
 
 
 def save(rates: dict, path: str) -> None:

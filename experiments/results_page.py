@@ -6,7 +6,8 @@ Reads the finished cells of ``SWEEP_DIR`` (default ``experiments/sweeps/cpu``, w
 ``OUT/RESULTS.md`` with, for each experiment: the paper's figure (one panel per scenario, one curve per method,
 mean ± s.e. over seeds of the 10-point moving average, the ceiling dashed; ``OUT/<experiment>.png`` and ``.pdf``), a
 table per scenario (seeds, budget, final return mean ± s.e. with its bootstrap 95 % interval, fraction of the ceiling,
-Welch's p against ToMacVF, wall time; the best mean in bold) and, where every method finished every scenario, the
+Welch's p against ToMacVF, wall time; the best mean in bold; a "who wins" line: the best and the methods Welch's test
+cannot tell from it) and, where every method finished every scenario, the
 IQM of ceiling-normalised final returns and ToMacVF's probability of improvement over each method (``jaxmac.stats``).
 Cells not finished are listed as "not run".
 """
@@ -19,7 +20,7 @@ import os
 import numpy as np
 
 from jaxmac.plotting import mean_and_standard_error, smooth
-from jaxmac.stats import CEILINGS, aggregate, compare_methods, load_sweep
+from jaxmac.stats import CEILINGS, aggregate, compare_methods, load_sweep, who_wins
 from jaxmac.sweep import EXPERIMENTS, PROTOCOLS
 
 REFERENCE = "tomacvf"
@@ -92,6 +93,11 @@ def scenario_table(results, experiment: str, scenario: str, protocol: str | None
             why = PROTOCOLS[protocol].not_run_reason(m.name, scenario) if protocol in PROTOCOLS else None
             status = f"not run: {why}" if why else "not finished yet"
             lines.append(f"| {labels[m.name]} | {status} | | | | | | |")
+    if cells:
+        best, tied = who_wins(cells)
+        tied_text = f"; not told apart from it (Welch's p ≥ 0.05): {', '.join(labels[t] for t in tied)}" if tied else \
+            "; every other method is below it (Welch's p < 0.05)"
+        lines += ["", f"Who wins: **{labels[best]}**{tied_text}."]
     return lines + [""]
 
 

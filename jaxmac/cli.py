@@ -177,7 +177,7 @@ def cmd_sweep(args) -> int:
             print(f"  {cell.path}: {cell.episodes} episodes per seed, {cell_status(out, cell)}, {cost}")
         for scenario, method, why in not_run_cells(args.experiment, args.protocol):
             print(f"  {scenario}/{method}: not run under this protocol: {why}")
-        print(f"estimated {total / 3600:.1f} core-hours at the measured first-chunk rates of {args.rates}"
+        print(f"estimated {total / 3600:.1f} core-hours at the measured rates of {args.rates}"
               + (f"; {unknown} cells not measured" if unknown else ""))
         return 0
     enable_compilation_cache()

@@ -146,6 +146,17 @@ def compare_methods(cells: list[CellResult], reference: str = "tomacvf") -> list
     return rows
 
 
+def who_wins(cells: list[CellResult], alpha: float = 0.05) -> tuple[str, list[str]]:
+    """The method with the highest mean final return of one scenario, and the others Welch's test cannot tell
+    from it at level ``alpha`` (p ≥ alpha; with fewer than 2 seeds a method is never told apart), best mean first."""
+    if not cells:
+        raise ValueError("who_wins: no finished cell")
+    ranked = sorted(cells, key=lambda c: -c.finals.mean())
+    best = ranked[0]
+    tied = [c.method for c in ranked[1:] if not welch_p(best.finals, c.finals) < alpha]
+    return best.method, tied
+
+
 def aggregate(results: dict[tuple[str, str], CellResult], scenarios: list[str], methods: list[str],
               reference: str = "tomacvf", reps: int = 2000, seed: int = 0) -> dict:
     """Across ``scenarios``: per method the IQM of ceiling-normalised final returns with its stratified-bootstrap

@@ -22,6 +22,8 @@ def test_results_page_from_run_folders(tmp_path):
     assert (tmp_path / "out" / "ablation.png").stat().st_size > 5000 and (tmp_path / "out" / "ablation.pdf").exists()
     assert "| ToMacVF | 2 | 96 | **145.0 ± 5.0** |" in page  # the best mean in bold
     assert "| ToMacVF w/o ATPG | 2 | 96 | 105.0 ± 5.0 |" in page
+    # two seeds 10 apart each: 145 vs 105 gives Welch p ≈ 0.03, so every other method is told apart
+    assert "Who wins: **ToMacVF**; every other method is below it (Welch's p < 0.05)." in page
     assert "| ToMacVF_VDN | not finished yet |" in page  # the mixers experiment has only ToMacVF (QMIX) on Overcooked-A
     assert "IQM" in page.split("## mixers")[0] and "not every method has finished" in page.split("## mixers")[1]
 

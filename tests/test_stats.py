@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 from scipy import stats as sps
 
-from jaxmac.stats import CEILINGS, aggregate, bootstrap_ci, compare_methods, final_returns, load_sweep, welch_p
+from jaxmac.stats import (CEILINGS, aggregate, bootstrap_ci, compare_methods, final_returns, load_sweep, welch_p,
+                          who_wins)
 
 
 def test_final_return_is_the_mean_of_the_last_ten_evaluations():
@@ -54,6 +55,24 @@ def test_compare_methods_rows():
     assert np.isnan(rows["tomacvf"]["p_vs_reference"])
     assert rows["avf"]["p_vs_reference"] == pytest.approx(welch_p(np.array([260, 270, 250, 265.0]),
                                                                   np.array([0, 40, 20, 10.0])))
+
+
+def test_who_wins_is_the_best_mean_and_those_welch_cannot_tell_from_it():
+    best, close, far = [200.0, 210, 190, 205], [150.0, 230, 120, 220], [0.0, 10, 5, 8]
+    cells = [_cell("boxpushing-6x6", "avf", far), _cell("boxpushing-6x6", "tomacvf", close),
+             _cell("boxpushing-6x6", "mac_cac", best)]
+    # by hand: Welch's t statistic and Welch-Satterthwaite degrees of freedom, two-sided tail from scipy
+    def p_by_hand(a, b):
+        a, b = np.array(a), np.array(b)
+        va, vb = a.var(ddof=1) / len(a), b.var(ddof=1) / len(b)
+        t = (a.mean() - b.mean()) / np.sqrt(va + vb)
+        dof = (va + vb) ** 2 / (va ** 2 / (len(a) - 1) + vb ** 2 / (len(b) - 1))
+        return 2 * sps.t.sf(abs(t), dof)
+    assert p_by_hand(best, close) >= 0.05 > p_by_hand(best, far)
+    assert who_wins(cells) == ("mac_cac", ["tomacvf"])
+    assert who_wins(cells[:1]) == ("avf", [])
+    with pytest.raises(ValueError, match="no finished cell"):
+        who_wins([])
 
 
 def test_aggregate_iqm_and_probability_of_improvement():
