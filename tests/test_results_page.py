@@ -24,6 +24,9 @@ def test_results_page_from_run_folders(tmp_path):
     assert "| ToMacVF w/o ATPG | 2 | 96 | 105.0 ± 5.0 |" in page
     # two seeds 10 apart each: 145 vs 105 gives Welch p ≈ 0.03, so every other method is told apart
     assert "Who wins: **ToMacVF**; every other method is below it (Welch's p < 0.05)." in page
+    # the headline: one row per scenario, the fraction of the ceiling (overcooked-B: 149.8), unfinished cells "…"
+    assert "| ablation | overcooked-B | **145.0 (97 %)** | 105.0 (70 %) | 95.0 (63 %) | 65.0 (43 %) |" in page
+    assert "| mixers | overcooked-A | **155.0 (94 %)** | … | … | … |" in page
     assert "| ToMacVF_VDN | not finished yet |" in page  # the mixers experiment has only ToMacVF (QMIX) on Overcooked-A
     assert "IQM" in page.split("## mixers")[0] and "not every method has finished" in page.split("## mixers")[1]
 
@@ -34,3 +37,4 @@ def test_cells_a_protocol_leaves_out_are_listed_with_the_reason(tmp_path):
     page = pathlib.Path(write_page(str(sweep), str(tmp_path / "out"), ["overcooked"])).read_text()
     assert "| Mac-Cen-DDRQN | not run: a step over 64 episodes" in page  # the folder name is the protocol
     assert "| Mac-IAICC | not finished yet |" in page
+    assert "| overcooked | overcooked-A | **155.0 (94 %)** | … | … | … | … | n.r. | n.r. | n.r. |" in page
