@@ -3,7 +3,9 @@
     python experiments/results_page.py [SWEEP_DIR] [--out experiments/results/sweep-PROTOCOL] [--experiments bp ...]
 
 Reads the finished cells of ``SWEEP_DIR`` (default ``experiments/sweeps/cpu``, written by ``jaxmac sweep``) and writes
-``OUT/RESULTS.md`` with, for each experiment: the paper's figure (one panel per scenario, one curve per method,
+``OUT/RESULTS.md`` with headline tables (one row per scenario, one column per method), the paper's four questions
+answered from the finished cells (ToMacVF against the baselines, the two ablations, the mixers) and, for each
+experiment: the paper's figure (one panel per scenario, one curve per method,
 mean ± s.e. over seeds of the 10-point moving average, the ceiling dashed; ``OUT/<experiment>.png`` and ``.pdf``), a
 table per scenario (seeds, budget, final return mean ± s.e. with its bootstrap 95 % interval, fraction of the ceiling,
 Welch's p against ToMacVF, wall time; the best mean in bold; a "who wins" line: the best and the methods Welch's test
@@ -20,7 +22,7 @@ import os
 import numpy as np
 
 from jaxmac.plotting import mean_and_standard_error, smooth
-from jaxmac.stats import CEILINGS, aggregate, compare_methods, load_sweep, who_wins
+from jaxmac.stats import CEILINGS, aggregate, compare_methods, load_sweep, welch_p, who_wins
 from jaxmac.sweep import EXPERIMENTS, PROTOCOLS
 
 REFERENCE = "tomacvf"
@@ -154,6 +156,63 @@ def aggregate_lines(results, experiment: str) -> list[str]:
     return lines + [""]
 
 
+def _difference(results, scenario: str, method: str, other: str) -> str | None:
+    """"mean(method) − mean(other) = d (Welch p)" on ``scenario``, None when either cell is not finished."""
+    a, b = results.get((scenario, method)), results.get((scenario, other))
+    if a is None or b is None:
+        return None
+    return f"{a.finals.mean() - b.finals.mean():+.1f} (p {_fmt_p(welch_p(a.finals, b.finals))})"
+
+
+def questions_section(results, labels: dict[str, str]) -> list[str]:
+    """The paper's four questions answered from the finished cells, one line per question and scenario group."""
+    lines = ["## The paper's four questions", "",
+             "Counted from the finished cells only; \"told apart\" means Welch's p < 0.05 with the seeds of this "
+             "protocol.", ""]
+    lines += ["**1. Does ToMacVF beat the asynchronous baselines?**", ""]
+    baselines = [m.name for m in EXPERIMENTS["bp"][0] if not m.name.startswith("tomacvf")]
+    for variant in ("tomacvf", "tomacvf-tuned"):
+        won, tied, below, scenarios = [], [], [], 0
+        for experiment in ("bp", "warehouse", "overcooked"):
+            methods, exp_scenarios = EXPERIMENTS[experiment]
+            for scenario in exp_scenarios:
+                others = [results[(scenario, m.name)] for m in methods
+                          if m.name in baselines and (scenario, m.name) in results]
+                own = results.get((scenario, variant))
+                if own is None or not others:
+                    continue
+                scenarios += 1
+                best, close = who_wins(others + [own])
+                if best == variant:
+                    won.append(scenario)
+                elif variant in close:
+                    tied.append(f"{scenario} (best {labels[best]})")
+                else:
+                    below.append(f"{scenario} ({labels[best]})")
+        if scenarios:
+            lines.append(f"- {labels[variant]}, {scenarios} scenarios with baselines finished: best mean on "
+                         f"{len(won)}{' (' + ', '.join(won) + ')' if won else ''}; not told apart from the best on "
+                         f"{len(tied)}{' (' + ', '.join(tied) + ')' if tied else ''}; below the best, told apart, on "
+                         f"{len(below)}{' (' + ', '.join(below) + ')' if below else ''}.")
+    for number, (question, other) in enumerate((("Does ATPG help?", "tomacvf-wo-atpg"),
+                                                 ("Does Mac-SJERT help (against Mac-JERT)?", "tomacvf-wo-sjert")), 2):
+        lines += ["", f"**{number}. {question}** ToMacVF minus {labels[other]}, mean final return:", ""]
+        found = [(sc, _difference(results, sc, "tomacvf", other)) for sc in EXPERIMENTS["ablation"][1]]
+        lines += [f"- {sc}: {d}" for sc, d in found if d] or ["- no finished pair yet"]
+    lines += ["", "**4. Which mixer suits ToMacVF?** Who wins among QMIX, VDN, QPLEX and QTRAN:", ""]
+    mixers, mixer_scenarios = EXPERIMENTS["mixers"]
+    labels = {**labels, **{m.name: m.label or m.name for m in mixers}}  # ToMacVF is named by its mixer here
+    found = []
+    for scenario in mixer_scenarios:
+        cells = [results[(scenario, m.name)] for m in mixers if (scenario, m.name) in results]
+        if len(cells) == len(mixers):
+            best, close = who_wins(cells)
+            found.append(f"- {scenario}: **{labels[best]}**" + (f"; not told apart: {', '.join(labels[c] for c in close)}"
+                                                                if close else "; the others told apart below it"))
+    lines += found or ["- no scenario with all four mixers finished yet"]
+    return lines + [""]
+
+
 def write_page(sweep_dir: str, out_dir: str, experiments: list[str], protocol: str | None = None) -> str:
     """``protocol`` (default: the sweep folder's name, when it is one) gives the reasons of cells it leaves out."""
     if protocol is None:
@@ -168,6 +227,9 @@ def write_page(sweep_dir: str, out_dir: str, experiments: list[str], protocol: s
             lines += headline_table(results, [e for e in group if e in experiments], protocol)
     lines += ["Mean final return over seeds (its fraction of the scenario's ceiling); the best of each row in bold; "
               "n.r.: not run under this protocol (reason in the experiment's table); …: not finished.", ""]
+    labels = {m.name: m.label or m.name for ms, _ in EXPERIMENTS.values() for m in ms}
+    labels["tomacvf"] = "ToMacVF"  # not the mixers experiment's "ToMacVF_QMIX"
+    lines += questions_section(results, labels)
     for experiment in experiments:
         lines += [f"## {experiment}", ""]
         if experiment_figure(results, experiment, os.path.join(out_dir, experiment)):

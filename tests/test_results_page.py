@@ -27,6 +27,10 @@ def test_results_page_from_run_folders(tmp_path):
     # the headline: one row per scenario, the fraction of the ceiling (overcooked-B: 149.8), unfinished cells "…"
     assert "| ablation | overcooked-B | **145.0 (97 %)** | 105.0 (70 %) | 95.0 (63 %) | 65.0 (43 %) |" in page
     assert "| mixers | overcooked-A | **155.0 (94 %)** | … | … | … |" in page
+    # the four questions, from the same cells: ToMacVF minus each ablation (Welch's p of 145±5 against 105±5: 0.030)
+    assert "- overcooked-B: +40.0 (p 0.030)" in page.split("Does ATPG help?")[1].split("**3.")[0]
+    assert "- overcooked-B: +50.0 (p 0.019)" in page.split("Mac-SJERT help")[1].split("**4.")[0]
+    assert "- no scenario with all four mixers finished yet" in page
     assert "| ToMacVF_VDN | not finished yet |" in page  # the mixers experiment has only ToMacVF (QMIX) on Overcooked-A
     assert "IQM" in page.split("## mixers")[0] and "not every method has finished" in page.split("## mixers")[1]
 
@@ -34,7 +38,12 @@ def test_results_page_from_run_folders(tmp_path):
 def test_cells_a_protocol_leaves_out_are_listed_with_the_reason(tmp_path):
     sweep = tmp_path / "cpu"
     _fake_run(sweep / "overcooked-A" / "tomacvf" / "seeds0-2", 0, [150.0, 160.0])
+    _fake_run(sweep / "overcooked-A" / "mac_cac" / "seeds0-2", 0, [20.0, 30.0])
+    _fake_run(sweep / "overcooked-B" / "tomacvf" / "seeds0-2", 0, [10.0, 20.0])
+    _fake_run(sweep / "overcooked-B" / "mac_iaicc" / "seeds0-2", 0, [100.0, 110.0])
     page = pathlib.Path(write_page(str(sweep), str(tmp_path / "out"), ["overcooked"])).read_text()
+    assert ("- ToMacVF, 2 scenarios with baselines finished: best mean on 1 (overcooked-A); not told apart from the best "
+            "on 0; below the best, told apart, on 1 (overcooked-B (Mac-IAICC)).") in page
     assert "| Mac-Cen-DDRQN | not run: a step over 64 episodes" in page  # the folder name is the protocol
-    assert "| Mac-IAICC | not finished yet |" in page
-    assert "| overcooked | overcooked-A | **155.0 (94 %)** | … | … | … | … | n.r. | n.r. | n.r. |" in page
+    assert "| Mac-IAICC | not finished yet |" in page.split("**overcooked-A**")[1]
+    assert "| overcooked | overcooked-A | **155.0 (94 %)** | … | 25.0 (15 %) | … | … | n.r. | n.r. | n.r. |" in page
