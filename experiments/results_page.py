@@ -122,7 +122,7 @@ def headline_table(results, experiments: list[str], protocol: str | None = None)
         names = {m.name for m in methods}
         for scenario in scenarios:
             cells = [results[(scenario, n)] for n in columns if n in names and (scenario, n) in results]
-            best = max(cells, key=lambda c: c.finals.mean()).method if cells else None
+            best = who_wins(cells)[0] if cells else None
             row = []
             for name in columns:
                 cell = results.get((scenario, name))
