@@ -16,10 +16,12 @@ and ends with the same result as an uninterrupted run. A run folder holds::
 from __future__ import annotations
 
 import csv
+import dataclasses
+import functools
 import json
 import os
 import time
-from typing import Any
+from typing import Any, Callable
 
 import jax
 import jax.numpy as jnp
@@ -76,13 +78,37 @@ def seed_sharding(seeds: int, devices: int):
     return jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec(SEED_AXIS))
 
 
-def _build(config: TrainConfig, rounds_per_chunk: int | None):
+@dataclasses.dataclass(frozen=True)
+class _Programs:
+    """A trainer and the jitted programs the host loop runs, seeds vmapped (state leaves ``[seeds, ...]``)."""
+    trainer: Any  # jaxmac.trainer.Trainer
+    init: Callable  # keys [seeds] -> TrainState
+    chunk: Callable  # TrainState -> (TrainState, metrics [seeds, rounds]); donates the state it is given
+    final_returns: Callable  # (params, keys [seeds], greedy: bool) -> (discounted, undiscounted) returns [seeds]
+
+
+@functools.lru_cache(maxsize=4)
+def _programs(config: TrainConfig, rounds_per_chunk: int | None) -> _Programs:
+    """Built once per setting in a process: a resumed, extended or finished run, or a test that trains the same
+    configuration several times, reuses the traced and compiled programs instead of tracing them again."""
     from jaxmac.algos import make_algorithm
     from jaxmac.config import make_env
     from jaxmac.trainer import make_train
 
     env = make_env(config)
-    return make_train(config, env, make_algorithm(config, env), rounds_per_chunk)
+    trainer = make_train(config, env, make_algorithm(config, env), rounds_per_chunk)
+    evaluations = {False: jax.jit(jax.vmap(lambda p, k: trainer.evaluate(p, k, config.eval_episodes),
+                                           axis_name=SEED_AXIS))}
+    if trainer.evaluate_greedy:
+        evaluations[True] = jax.jit(jax.vmap(lambda p, k: trainer.evaluate_greedy(p, k, config.eval_episodes),
+                                             axis_name=SEED_AXIS))
+
+    def final_returns(params, keys, greedy: bool):
+        stats = evaluations[greedy and trainer.evaluate_greedy is not None](params, keys)
+        return np.asarray(stats["disc_return"]).mean(-1), np.asarray(stats["return"]).mean(-1)
+
+    return _Programs(trainer, jax.jit(jax.vmap(trainer.init)), jax.jit(trainer.seeds_chunk, donate_argnums=0),
+                     final_returns)
 
 
 def _checkpointer(out_dir: str):
@@ -191,27 +217,32 @@ def train_run(
     if os.path.exists(os.path.join(out_dir, "config.json")):
         raise ValueError(f"{out_dir} already holds a run; use resume (jaxmac train --resume {out_dir}) "
                          "or choose another --out")
-    trainer = _build(config, rounds_per_chunk)
+    programs = _programs(config, rounds_per_chunk)
     meta = {"config": config.to_dict(), "seeds": seeds, "seed_offset": seed_offset,
-            "rounds_per_chunk": trainer.rounds_per_chunk, "jax": jax.__version__}
+            "rounds_per_chunk": programs.trainer.rounds_per_chunk, "jax": jax.__version__}
     write_json_atomic(os.path.join(out_dir, "config.json"), meta)
     keys = jax.vmap(jax.random.key)(jnp.arange(seed_offset, seed_offset + seeds))
-    state = jax.jit(jax.vmap(trainer.init))(keys)
-    return _loop(trainer, state, 0, out_dir, meta, checkpoint_seconds, progress, stop_after_chunks, 0.0, sharding)
+    state = programs.init(keys)
+    return _loop(programs, state, 0, out_dir, meta, checkpoint_seconds, progress, stop_after_chunks, 0.0, sharding)
 
 
 def load_run(out_dir: str):
     """``(trainer, state, chunks_done, meta)`` of the run in ``out_dir`` at its newest checkpoint
     (a fresh state and 0 chunks if it has none). ``state`` leaves are ``[seeds, ...]``."""
+    programs, state, step, meta = _load(out_dir)
+    return programs.trainer, state, step, meta
+
+
+def _load(out_dir: str):
+    """``load_run`` with the run's ``_Programs`` in place of its trainer."""
     path = os.path.join(out_dir, "config.json")
     if not os.path.exists(path):
         raise ValueError(f"{out_dir} holds no run (no config.json)")
     with open(path) as f:
         meta = json.load(f)
-    config = TrainConfig.from_dict(meta["config"])
-    trainer = _build(config, meta["rounds_per_chunk"])
+    programs = _programs(TrainConfig.from_dict(meta["config"]), meta["rounds_per_chunk"])
     keys = jax.vmap(jax.random.key)(jnp.arange(meta["seed_offset"], meta["seed_offset"] + meta["seeds"]))
-    state = jax.jit(jax.vmap(trainer.init))(keys)
+    state = programs.init(keys)
     mngr = _checkpointer(out_dir)
     step = mngr.latest_step()
     if step is not None:
@@ -220,7 +251,7 @@ def load_run(out_dir: str):
         abstract = jax.eval_shape(_to_saveable, state)
         state = _from_saved(mngr.restore(step, args=ocp.args.StandardRestore(abstract)))
     mngr.close()
-    return trainer, state, step or 0, meta
+    return programs, state, step or 0, meta
 
 
 def extend_budget(out_dir: str, episodes: int) -> None:
@@ -247,14 +278,14 @@ def finish_run(out_dir: str) -> dict[str, Any]:
     counts episodes from the start, so it does not depend on the budget."""
     if is_finished(out_dir):
         raise ValueError(f"{out_dir} has already finished (summary.json exists)")
-    trainer, state, chunk, meta = load_run(out_dir)
+    programs, state, chunk, meta = _load(out_dir)
     if chunk == 0:
         raise ValueError(f"{out_dir} has no checkpoint yet: nothing to finish (resume it instead)")
-    _truncate_metrics(os.path.join(out_dir, "metrics.csv"), chunk * trainer.rounds_per_chunk)
+    _truncate_metrics(os.path.join(out_dir, "metrics.csv"), chunk * programs.trainer.rounds_per_chunk)
     with open(os.path.join(out_dir, "progress.json")) as f:
         wall = float(json.load(f)["wall_seconds"])
-    budget = trainer.config.episodes
-    summary = _finish(trainer, state, out_dir, meta, wall)
+    budget = programs.trainer.config.episodes
+    summary = _finish(programs, state, out_dir, meta, wall)
     summary.update(stopped_at=summary["episodes"], budget=budget)
     write_json_atomic(os.path.join(out_dir, "summary.json"), summary)
     return summary
@@ -293,27 +324,34 @@ def resume_run(out_dir: str, checkpoint_seconds: float = 120.0, progress: bool =
         change_diverged_settings(out_dir, assignments)
     if episodes is not None:
         extend_budget(out_dir, episodes)
-    trainer, state, chunk, meta = load_run(out_dir)
+    programs, state, chunk, meta = _load(out_dir)
     sharding = seed_sharding(meta["seeds"], devices)
     wall = 0.0
     progress_path = os.path.join(out_dir, "progress.json")
     if chunk and os.path.exists(progress_path):
         with open(progress_path) as f:
             wall = float(json.load(f)["wall_seconds"])
-    _truncate_metrics(os.path.join(out_dir, "metrics.csv"), chunk * trainer.rounds_per_chunk)
-    return _loop(trainer, state, chunk, out_dir, meta, checkpoint_seconds, progress, stop_after_chunks, wall, sharding)
+    _truncate_metrics(os.path.join(out_dir, "metrics.csv"), chunk * programs.trainer.rounds_per_chunk)
+    return _loop(programs, state, chunk, out_dir, meta, checkpoint_seconds, progress, stop_after_chunks, wall,
+                 sharding)
 
 
-def _loop(trainer, state, chunk, out_dir, meta, checkpoint_seconds, progress, stop_after_chunks, wall_before,
+def placed(state, sharding=None):
+    """``state`` committed to its device(s) (``sharding``, or the first device), as a restored checkpoint is: a
+    fresh and a resumed run then lower to the same program, and the second one loads it from the persistent
+    compilation cache instead of compiling it again (an uncommitted array lowers without a sharding)."""
+    return jax.device_put(state, sharding if sharding is not None else jax.devices()[0])
+
+
+def _loop(programs, state, chunk, out_dir, meta, checkpoint_seconds, progress, stop_after_chunks, wall_before,
           sharding=None):
     import orbax.checkpoint as ocp
     from tqdm import tqdm
 
-    if sharding is not None:
-        state = jax.device_put(state, sharding)
+    state = placed(state, sharding)
+    trainer = programs.trainer
     config = trainer.config
     seed_ids = list(range(meta["seed_offset"], meta["seed_offset"] + meta["seeds"]))
-    train_chunk = jax.jit(trainer.seeds_chunk, donate_argnums=0)
     mngr = _checkpointer(out_dir)
     metrics_path = os.path.join(out_dir, "metrics.csv")
     total = trainer.total_chunks
@@ -325,7 +363,7 @@ def _loop(trainer, state, chunk, out_dir, meta, checkpoint_seconds, progress, st
     last_eval = float("nan")
     done_here = 0
     while chunk < total:
-        state, metrics = train_chunk(state)
+        state, metrics = programs.chunk(state)
         metrics = jax.device_get(metrics)
         _write_metrics(metrics_path, metrics, seed_ids, chunk * trainer.rounds_per_chunk)
         problem = check_finite(metrics, seed_ids, chunk * trainer.rounds_per_chunk)
@@ -360,23 +398,19 @@ def _loop(trainer, state, chunk, out_dir, meta, checkpoint_seconds, progress, st
     bar.close()
     mngr.close()
     wall = wall_before + time.perf_counter() - start
-    return _finish(trainer, state, out_dir, meta, wall)
+    return _finish(programs, state, out_dir, meta, wall)
 
 
-def _finish(trainer, state, out_dir, meta, wall_seconds):
+def _finish(programs, state, out_dir, meta, wall_seconds):
     """Final greedy evaluation per seed, summary.json and the learning-curve plot."""
     from jaxmac.plotting import plot_learning_curve
 
+    trainer = programs.trainer
     config = trainer.config
     keys = jax.vmap(lambda s: jax.random.fold_in(jax.random.key(10_007), s))(
         jnp.arange(meta["seed_offset"], meta["seed_offset"] + meta["seeds"]))
-    def final_returns(evaluate):
-        stats = jax.jit(jax.vmap(lambda p, k: evaluate(p, k, config.eval_episodes), axis_name=SEED_AXIS))(
-            state.params, keys)
-        return np.asarray(stats["disc_return"]).mean(-1), np.asarray(stats["return"]).mean(-1)
-
     # greedy: the value learners' evaluation policy, the actor-critics' greedy_act (their sampled one is kept too)
-    disc, undisc = final_returns(trainer.evaluate_greedy or trainer.evaluate)
+    disc, undisc = programs.final_returns(state.params, keys, greedy=True)
     summary = {
         "scenario": config.scenario,
         "algorithm": config.algorithm,
@@ -392,7 +426,7 @@ def _finish(trainer, state, out_dir, meta, wall_seconds):
         "optimal_return": OPTIMAL_DISC_RETURN.get(config.scenario),
     }
     if trainer.evaluate_greedy:  # the stochastic evaluation policy of the originals (sampled, un-mixed)
-        sampled, sampled_undisc = final_returns(trainer.evaluate)
+        sampled, sampled_undisc = programs.final_returns(state.params, keys, greedy=False)
         summary.update(final_sampled_return=sampled.tolist(), final_sampled_return_mean=float(sampled.mean()),
                        final_sampled_return_undiscounted_mean=float(sampled_undisc.mean()))
     write_json_atomic(os.path.join(out_dir, "summary.json"), summary)

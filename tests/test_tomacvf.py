@@ -19,7 +19,7 @@ from jaxmac.buffer import episode
 from jaxmac.buffer import ring as ring_lib
 from jaxmac.config import make_env, scenario_config
 from jaxmac.networks import jert_sequence, slot_inputs
-from jaxmac.run import enable_compilation_cache, finish_run, resume_run, train_run
+from jaxmac.run import enable_compilation_cache, finish_run, load_run, placed, resume_run, train_run
 from jaxmac.trainer import make_train
 
 TINY = scenario_config("boxpushing-6x6", tiny=True).override(
@@ -181,12 +181,18 @@ def test_resume_equals_uninterrupted(tmp_path):
     assert (tmp_path / "full" / "curve.png").stat().st_size > 1000
     with pytest.raises(ValueError, match="already holds a run"):
         train_run(config, 2, str(tmp_path / "full"), progress=False)
+    # the state a run trains from lowers as a restored one does: a resumed run reuses the compiled program
+    _, restored, _, _ = load_run(str(tmp_path / "killed"))
+    fresh = placed(jax.jit(jax.vmap(build(config).init))(jax.vmap(jax.random.key)(jnp.arange(2))))
+    probe = jax.jit(lambda state: jax.tree_util.tree_map(jnp.sum, state.params))
+    assert probe.lower(fresh).as_text() == probe.lower(restored).as_text()
 
 
 def test_extending_a_finished_run_equals_a_run_with_the_larger_budget(tmp_path):
     config = TINY.override(episodes=32)
-    longer = train_run(config.override(episodes=64), 1, str(tmp_path / "long"), rounds_per_chunk=2, progress=False)
-    short = train_run(config, 1, str(tmp_path / "short"), rounds_per_chunk=2, progress=False)
+    # two seeds as in test_resume_equals_uninterrupted: the same programs, compiled once for both tests
+    longer = train_run(config.override(episodes=64), 2, str(tmp_path / "long"), rounds_per_chunk=2, progress=False)
+    short = train_run(config, 2, str(tmp_path / "short"), rounds_per_chunk=2, progress=False)
     with pytest.raises(ValueError, match="episodes=16: a run can only be extended.*budget of 32"):
         resume_run(str(tmp_path / "short"), progress=False, episodes=16)
     extended = resume_run(str(tmp_path / "short"), progress=False, episodes=64)
@@ -195,7 +201,7 @@ def test_extending_a_finished_run_equals_a_run_with_the_larger_budget(tmp_path):
     assert _read(tmp_path / "long" / "metrics.csv") == _read(tmp_path / "short" / "metrics.csv")
     # finishing a run of budget 64 after 32 episodes ends it as the run of budget 32 ended
     per_chunk = 2 * config.num_envs
-    assert train_run(config.override(episodes=64), 1, str(tmp_path / "stopped"), rounds_per_chunk=2, progress=False,
+    assert train_run(config.override(episodes=64), 2, str(tmp_path / "stopped"), rounds_per_chunk=2, progress=False,
                      stop_after_chunks=32 // per_chunk) is None
     finished = finish_run(str(tmp_path / "stopped"))
     assert finished["final_greedy_return"] == short["final_greedy_return"]
