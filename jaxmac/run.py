@@ -291,6 +291,18 @@ def finish_run(out_dir: str) -> dict[str, Any]:
     return summary
 
 
+def _set_aside_early_summary(out_dir: str, training_on: bool) -> None:
+    """A finished run trained further (ended early by ``finish_run``, or extended) no longer ends where its summary
+    says: keep that summary as ``summary.stopped-at-N.json`` (N its episodes per seed), so that the run counts as
+    unfinished until it ends again and ``finish_run`` can end it again."""
+    path = os.path.join(out_dir, "summary.json")
+    if not (training_on and os.path.exists(path)):
+        return
+    with open(path) as f:
+        episodes = json.load(f)["episodes"]
+    os.replace(path, os.path.join(out_dir, f"summary.stopped-at-{episodes}.json"))
+
+
 def is_finished(out_dir: str) -> bool:
     return os.path.exists(os.path.join(out_dir, "summary.json"))
 
@@ -325,6 +337,7 @@ def resume_run(out_dir: str, checkpoint_seconds: float = 120.0, progress: bool =
     if episodes is not None:
         extend_budget(out_dir, episodes)
     programs, state, chunk, meta = _load(out_dir)
+    _set_aside_early_summary(out_dir, chunk < programs.trainer.total_chunks)
     sharding = seed_sharding(meta["seeds"], devices)
     wall = 0.0
     progress_path = os.path.join(out_dir, "progress.json")

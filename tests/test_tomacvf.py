@@ -210,6 +210,11 @@ def test_extending_a_finished_run_equals_a_run_with_the_larger_budget(tmp_path):
         _read(tmp_path / "stopped" / "metrics.csv"))]
     with pytest.raises(ValueError, match="already finished"):
         finish_run(str(tmp_path / "stopped"))
+    # an early-finished run trained on: its early summary set aside, it ends as the run of budget 64
+    resumed = resume_run(str(tmp_path / "stopped"), progress=False)
+    assert resumed["final_greedy_return"] == longer["final_greedy_return"]
+    assert json.loads((tmp_path / "stopped" / "summary.stopped-at-32.json").read_text())["stopped_at"] == 32
+    assert _read(tmp_path / "stopped" / "metrics.csv") == _read(tmp_path / "long" / "metrics.csv")
 
 
 def test_cli_resume_refuses_options_it_would_ignore(tmp_path, capsys):
