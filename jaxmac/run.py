@@ -84,7 +84,9 @@ class _Programs:
     trainer: Any  # jaxmac.trainer.Trainer
     init: Callable  # keys [seeds] -> TrainState
     chunk: Callable  # TrainState -> (TrainState, metrics [seeds, rounds]); donates the state it is given
-    final_returns: Callable  # (params, keys [seeds], greedy: bool) -> (discounted, undiscounted) returns [seeds]
+    # (params, keys [seeds]) -> (discounted, undiscounted) mean final-evaluation returns [seeds]
+    greedy_returns: Callable  # the greedy policy: the value learners' own, the actor-critics' greedy_act
+    sampled_returns: Callable  # the policy ``evaluate`` runs (the actor-critics' sampled one)
 
 
 @functools.lru_cache(maxsize=4)
@@ -97,18 +99,19 @@ def _programs(config: TrainConfig, rounds_per_chunk: int | None) -> _Programs:
 
     env = make_env(config)
     trainer = make_train(config, env, make_algorithm(config, env), rounds_per_chunk)
-    evaluations = {False: jax.jit(jax.vmap(lambda p, k: trainer.evaluate(p, k, config.eval_episodes),
-                                           axis_name=SEED_AXIS))}
-    if trainer.evaluate_greedy:
-        evaluations[True] = jax.jit(jax.vmap(lambda p, k: trainer.evaluate_greedy(p, k, config.eval_episodes),
-                                             axis_name=SEED_AXIS))
 
-    def final_returns(params, keys, greedy: bool):
-        stats = evaluations[greedy and trainer.evaluate_greedy is not None](params, keys)
-        return np.asarray(stats["disc_return"]).mean(-1), np.asarray(stats["return"]).mean(-1)
+    def final_returns(evaluate):
+        run = jax.jit(jax.vmap(lambda p, k: evaluate(p, k, config.eval_episodes), axis_name=SEED_AXIS))
 
+        def returns(params, keys):
+            stats = run(params, keys)
+            return np.asarray(stats["disc_return"]).mean(-1), np.asarray(stats["return"]).mean(-1)
+
+        return returns
+
+    sampled = final_returns(trainer.evaluate)
     return _Programs(trainer, jax.jit(jax.vmap(trainer.init)), jax.jit(trainer.seeds_chunk, donate_argnums=0),
-                     final_returns)
+                     final_returns(trainer.evaluate_greedy) if trainer.evaluate_greedy else sampled, sampled)
 
 
 def _checkpointer(out_dir: str):
@@ -423,7 +426,7 @@ def _finish(programs, state, out_dir, meta, wall_seconds):
     keys = jax.vmap(lambda s: jax.random.fold_in(jax.random.key(10_007), s))(
         jnp.arange(meta["seed_offset"], meta["seed_offset"] + meta["seeds"]))
     # greedy: the value learners' evaluation policy, the actor-critics' greedy_act (their sampled one is kept too)
-    disc, undisc = programs.final_returns(state.params, keys, greedy=True)
+    disc, undisc = programs.greedy_returns(state.params, keys)
     summary = {
         "scenario": config.scenario,
         "algorithm": config.algorithm,
@@ -439,7 +442,7 @@ def _finish(programs, state, out_dir, meta, wall_seconds):
         "optimal_return": OPTIMAL_DISC_RETURN.get(config.scenario),
     }
     if trainer.evaluate_greedy:  # the stochastic evaluation policy of the originals (sampled, un-mixed)
-        sampled, sampled_undisc = programs.final_returns(state.params, keys, greedy=False)
+        sampled, sampled_undisc = programs.sampled_returns(state.params, keys)
         summary.update(final_sampled_return=sampled.tolist(), final_sampled_return_mean=float(sampled.mean()),
                        final_sampled_return_undiscounted_mean=float(sampled_undisc.mean()))
     write_json_atomic(os.path.join(out_dir, "summary.json"), summary)
