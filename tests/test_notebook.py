@@ -11,7 +11,7 @@ NOTEBOOK = os.path.join(os.path.dirname(__file__), "..", "experiments", "quickst
 
 
 def test_quickstart_notebook_executes(tmp_path, monkeypatch):
-    monkeypatch.setenv("JAXMAC_CACHE", str(tmp_path / "xla"))
+    # the kernel inherits the session's compilation cache ($JAXMAC_CACHE, conftest.py)
     monkeypatch.setenv("MPLBACKEND", "Agg")
     nb = nbformat.read(NOTEBOOK, as_version=4)
     client = nbclient.NotebookClient(nb, timeout=900, kernel_name="python3",

@@ -19,7 +19,7 @@ from jaxmac.buffer import episode
 from jaxmac.buffer import ring as ring_lib
 from jaxmac.config import make_env, scenario_config
 from jaxmac.networks import jert_sequence, slot_inputs
-from jaxmac.run import enable_compilation_cache, finish_run, load_run, placed, resume_run, train_run
+from jaxmac.run import finish_run, load_run, placed, resume_run, train_run
 from jaxmac.trainer import make_train
 
 TINY = scenario_config("boxpushing-6x6", tiny=True).override(
@@ -27,11 +27,6 @@ TINY = scenario_config("boxpushing-6x6", tiny=True).override(
     eval_episodes=2, target_update_episodes=16, eps_decay_episodes=16,
 )
 PROGRESS = Progress(episodes=jnp.int32(0), env_steps=jnp.int32(0), updates=jnp.int32(0))
-
-
-@pytest.fixture(scope="module", autouse=True)
-def compilation_cache(tmp_path_factory):
-    enable_compilation_cache(str(tmp_path_factory.mktemp("xla_cache")))
 
 
 def build(config=TINY, rounds_per_chunk=2):
