@@ -95,7 +95,9 @@ def scenario_table(results, experiment: str, scenario: str, protocol: str | None
             why = PROTOCOLS[protocol].not_run_reason(m.name, scenario) if protocol in PROTOCOLS else None
             status = f"not run: {why}" if why else "not finished yet"
             lines.append(f"| {labels[m.name]} | {status} | | | | | | |")
-    if cells:
+    if len(cells) == 1:
+        lines += ["", f"Who wins: not decided; only {labels[cells[0].method]} has finished."]
+    elif cells:
         best, tied = who_wins(cells)
         tied_text = f"; not told apart from it (Welch's p ≥ 0.05): {', '.join(labels[t] for t in tied)}" if tied else \
             "; every other method is below it (Welch's p < 0.05)"

@@ -32,6 +32,9 @@ def test_results_page_from_run_folders(tmp_path):
     assert "- overcooked-B: +50.0 (p 0.019)" in page.split("Mac-SJERT help")[1].split("**4.")[0]
     assert "- no scenario with all four mixers finished yet" in page
     assert "| ToMacVF_VDN | not finished yet |" in page  # the mixers experiment has only ToMacVF (QMIX) on Overcooked-A
+    # a lone finished cell wins nothing: no "every other method is below it" over methods that have not run
+    overcooked_a = page.split("## mixers")[1].split("**overcooked-A**")[1]
+    assert "Who wins: not decided; only ToMacVF_QMIX has finished." in overcooked_a
     assert "IQM" in page.split("## mixers")[0] and "not every method has finished" in page.split("## mixers")[1]
 
 
