@@ -19,11 +19,9 @@ LLVM_LEVEL_FLAG = "--xla_backend_optimization_level=0"
 if LLVM_LEVEL_FLAG not in os.environ.get("XLA_FLAGS", ""):
     os.environ["XLA_FLAGS"] = f"{os.environ.get('XLA_FLAGS', '')} {LLVM_LEVEL_FLAG}".strip()
 
-import jax  # noqa: E402  (after XLA_FLAGS)
 import pytest  # noqa: E402
 
-
-from jaxmac.run import enable_compilation_cache  # noqa: E402
+from jaxmac.run import enable_compilation_cache  # noqa: E402  (imports jax: after XLA_FLAGS)
 
 
 @pytest.fixture(scope="session", autouse=True)
@@ -33,6 +31,6 @@ def _one_compilation_per_program(tmp_path_factory):
     session_root = base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base
     cache = session_root / "xla_cache"
     cache.mkdir(exist_ok=True)
-    os.environ["JAXMAC_CACHE"] = str(cache)
-    enable_compilation_cache()
+    os.environ["JAXMAC_CACHE"] = str(cache)  # for the CLI inside tests and the processes tests start
+    enable_compilation_cache(str(cache))
     yield
