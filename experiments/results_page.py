@@ -140,15 +140,24 @@ def headline_table(results, experiments: list[str], protocol: str | None = None)
     return lines + [""]
 
 
-def aggregate_lines(results, experiment: str) -> list[str]:
+def aggregate_lines(results, experiment: str, protocol: str | None = None) -> list[str]:
+    """IQM and probability of improvement across the experiment's scenarios, over the methods that ran on every one
+    of them; a method the protocol leaves out on some scenario is named and left out of the aggregates."""
     methods, scenarios = EXPERIMENTS[experiment]
-    names = [m.name for m in methods]
     labels = {m.name: m.label or m.name for m in methods}
+    spec = PROTOCOLS.get(protocol) if protocol else None
+    left_out = [m.name for m in methods
+                if spec is not None and any(spec.not_run_reason(m.name, s) for s in scenarios)]
+    names = [m.name for m in methods if m.name not in left_out]
     if any((s, n) not in results for s in scenarios for n in names):
         return ["Aggregates: not every method has finished every scenario yet.", ""]
+    if not names:
+        return ["Aggregates: no method runs on every scenario under this protocol.", ""]
     agg = aggregate(results, list(scenarios), names, REFERENCE)
+    without = (f"; without {', '.join(labels[n] for n in left_out)}, not run on every scenario under this protocol"
+               if left_out else "")
     lines = [f"Aggregates over {len(scenarios)} scenarios ({agg['runs']} seeds each; final returns divided by the "
-             "ceiling; rliable, stratified bootstrap 95 % intervals):", "",
+             f"ceiling; rliable, stratified bootstrap 95 % intervals{without}):", "",
              "| method | IQM | 95 % CI | P(ToMacVF > method) | 95 % CI |", "|---|---|---|---|---|"]
     for n in names:
         iqm = agg["iqm"][n]
@@ -238,7 +247,7 @@ def write_page(sweep_dir: str, out_dir: str, experiments: list[str], protocol: s
             lines += [f"![{experiment}]({experiment}.png)", ""]
         for scenario in EXPERIMENTS[experiment][1]:
             lines += scenario_table(results, experiment, scenario, protocol)
-        lines += aggregate_lines(results, experiment)
+        lines += aggregate_lines(results, experiment, protocol)
     path = os.path.join(out_dir, "RESULTS.md")
     with open(path, "w") as f:
         f.write("\n".join(lines))

@@ -50,3 +50,21 @@ def test_cells_a_protocol_leaves_out_are_listed_with_the_reason(tmp_path):
     assert "| Mac-Cen-DDRQN | not run: a step over 64 episodes" in page  # the folder name is the protocol
     assert "| Mac-IAICC | not finished yet |" in page.split("**overcooked-A**")[1]
     assert "| overcooked | overcooked-A | **155.0 (94 %)** | … | 25.0 (15 %) | … | … | n.r. | n.r. | n.r. |" in page
+
+
+def test_aggregates_leave_out_the_methods_a_protocol_does_not_run(tmp_path):
+    # cpu leaves the value baselines out on Overcooked: the aggregates run over the five methods that ran everywhere
+    sweep = tmp_path / "cpu"
+    for i, s in enumerate(("overcooked-A", "overcooked-B", "overcooked-C")):
+        for j, m in enumerate(("tomacvf", "tomacvf-tuned", "mac_cac", "mac_iaicc", "mac_niacc")):
+            _fake_run(sweep / s / m / "seeds0-2", 0, [10.0 * j + i, 10.0 * j + i + 5])
+    overcooked = pathlib.Path(write_page(str(sweep), str(tmp_path / "out"), ["overcooked"])).read_text()
+    aggregates = overcooked.split("## overcooked")[1].split("Aggregates")[1]
+    assert "without Mac-Dec-MADDRQN, Mac-Cen-DDRQN, AVF, not run on every scenario under this protocol" in aggregates
+    for label in ("ToMacVF", "ToMacVF (tuned)", "Mac-CAC", "Mac-IAICC", "Mac-NIACC"):
+        assert f"\n| {label} | " in aggregates
+    assert "| AVF |" not in aggregates
+    # one runnable cell missing: no aggregates yet
+    (sweep / "overcooked-C" / "mac_niacc" / "seeds0-2" / "summary.json").unlink()
+    page = pathlib.Path(write_page(str(sweep), str(tmp_path / "out2"), ["overcooked"])).read_text()
+    assert "Aggregates: not every method has finished every scenario yet." in page
