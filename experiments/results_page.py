@@ -210,17 +210,28 @@ def questions_section(results, labels: dict[str, str]) -> list[str]:
         lines += ["", f"**{number}. {question}** ToMacVF minus {labels[other]}, mean final return:", ""]
         found = [(sc, _difference(results, sc, "tomacvf", other)) for sc in EXPERIMENTS["ablation"][1]]
         lines += [f"- {sc}: {d}" for sc, d in found if d] or ["- no finished pair yet"]
+        pairs = [(results[(sc, "tomacvf")].finals, results[(sc, other)].finals) for sc, d in found if d]
+        if pairs:
+            helps = sum(a.mean() > b.mean() and welch_p(a, b) < 0.05 for a, b in pairs)
+            hurts = sum(a.mean() < b.mean() and welch_p(a, b) < 0.05 for a, b in pairs)
+            lines.append(f"- Verdict: ToMacVF above {labels[other]}, told apart, on {helps} of {len(pairs)} "
+                         f"scenarios; below it, told apart, on {hurts}.")
     lines += ["", "**4. Which mixer suits ToMacVF?** Who wins among QMIX, VDN, QPLEX and QTRAN:", ""]
     mixers, mixer_scenarios = EXPERIMENTS["mixers"]
     labels = {**labels, **{m.name: m.label or m.name for m in mixers}}  # ToMacVF is named by its mixer here
-    found = []
+    winners = {}
     for scenario in mixer_scenarios:
         cells = [results[(scenario, m.name)] for m in mixers if (scenario, m.name) in results]
         if len(cells) == len(mixers):
-            best, close = who_wins(cells)
-            found.append(f"- {scenario}: **{labels[best]}**" + (f"; not told apart: {', '.join(labels[c] for c in close)}"
-                                                                if close else "; the others told apart below it"))
-    lines += found or ["- no scenario with all four mixers finished yet"]
+            winners[scenario] = who_wins(cells)
+    lines += [f"- {scenario}: **{labels[best]}**" + (f"; not told apart: {', '.join(labels[c] for c in close)}"
+                                                     if close else "; the others told apart below it")
+              for scenario, (best, close) in winners.items()] or ["- no scenario with all four mixers finished yet"]
+    if winners:
+        qmix = mixers[0].name  # ToMacVF's own mixer, the paper's pick
+        alone = sum(best == qmix and not close for best, close in winners.values())
+        lines.append(f"- Verdict: {labels[qmix]} is best and told apart from the other three on {alone} of "
+                     f"{len(winners)} scenarios.")
     return lines + [""]
 
 

@@ -30,6 +30,8 @@ def test_results_page_from_run_folders(tmp_path):
     # the four questions, from the same cells: ToMacVF minus each ablation (Welch's p of 145±5 against 105±5: 0.030)
     assert "- overcooked-B: +40.0 (p 0.030)" in page.split("Does ATPG help?")[1].split("**3.")[0]
     assert "- overcooked-B: +50.0 (p 0.019)" in page.split("Mac-SJERT help")[1].split("**4.")[0]
+    assert ("- Verdict: ToMacVF above ToMacVF w/o ATPG, told apart, on 2 of 2 scenarios; below it, told apart, on 0."
+            in page)
     assert "- no scenario with all four mixers finished yet" in page
     assert "| ToMacVF_VDN | not finished yet |" in page  # the mixers experiment has only ToMacVF (QMIX) on Overcooked-A
     # a lone finished cell wins nothing: no "every other method is below it" over methods that have not run
@@ -68,3 +70,13 @@ def test_aggregates_leave_out_the_methods_a_protocol_does_not_run(tmp_path):
     (sweep / "overcooked-C" / "mac_niacc" / "seeds0-2" / "summary.json").unlink()
     page = pathlib.Path(write_page(str(sweep), str(tmp_path / "out2"), ["overcooked"])).read_text()
     assert "Aggregates: not every method has finished every scenario yet." in page
+
+
+def test_the_mixer_question_names_the_winner_told_apart(tmp_path):
+    sweep = tmp_path / "sweep"
+    for m, base in (("tomacvf", 150.0), ("tomacvf-vdn", 10.0), ("tomacvf-qplex", 20.0), ("tomacvf-qtran", 0.0)):
+        _fake_run(sweep / "overcooked-A" / m / "seeds0-2", 0, [base, base + 10])
+    page = pathlib.Path(write_page(str(sweep), str(tmp_path / "out"), ["mixers"])).read_text()
+    mixer_answer = page.split("**4. Which mixer")[1].split("## mixers")[0]
+    assert "- overcooked-A: **ToMacVF_QMIX**; the others told apart below it" in mixer_answer
+    assert "- Verdict: ToMacVF_QMIX is best and told apart from the other three on 1 of 1 scenarios." in mixer_answer
