@@ -80,7 +80,7 @@ def plot_curves(curves: list[tuple[str, np.ndarray, np.ndarray]], png_path: str,
     fig.tight_layout()
     fig.savefig(png_path)
     if pdf:
-        fig.savefig(png_path.rsplit(".", 1)[0] + ".pdf")
+        fig.savefig(png_path.rsplit(".", 1)[0] + ".pdf", metadata={"CreationDate": None})  # reproducible bytes
     plt.close(fig)
 
 
