@@ -21,7 +21,7 @@ import os
 
 import numpy as np
 
-from jaxmac.plotting import mean_and_standard_error, smooth
+from jaxmac.plotting import mean_and_standard_error, save_figure, smooth
 from jaxmac.stats import CEILINGS, aggregate, compare_methods, load_sweep, welch_p, who_wins
 from jaxmac.sweep import EXPERIMENTS, PROTOCOLS
 
@@ -67,14 +67,18 @@ def experiment_figure(results, experiment: str, out_base: str, window: int = 10)
     fig.legend(list(handles.values()), list(handles), loc="lower center", ncol=min(7, len(handles)), fontsize=8,
                frameon=False)
     fig.tight_layout(rect=(0, 0.1, 1, 1))
-    fig.savefig(out_base + ".png")
-    fig.savefig(out_base + ".pdf", metadata={"CreationDate": None})  # the same cells give the same bytes
+    save_figure(fig, out_base + ".png", pdf=True)
     plt.close(fig)
     return True
 
 
 def _fmt_p(p: float) -> str:
     return "–" if np.isnan(p) else (f"{p:.3f}" if p >= 0.001 else "<0.001")
+
+
+def _not_run_reason(protocol: str | None, method: str, scenario: str) -> str | None:
+    """Why ``protocol`` leaves the cell out, None when it runs it (or the protocol is unknown)."""
+    return PROTOCOLS[protocol].not_run_reason(method, scenario) if protocol in PROTOCOLS else None
 
 
 def scenario_table(results, experiment: str, scenario: str, protocol: str | None = None) -> list[str]:
@@ -92,7 +96,7 @@ def scenario_table(results, experiment: str, scenario: str, protocol: str | None
                      f"{_fmt_p(r['p_vs_reference'])} | {r['wall_seconds'] / 60:.0f} min |")
     for m in methods:
         if (scenario, m.name) not in results:
-            why = PROTOCOLS[protocol].not_run_reason(m.name, scenario) if protocol in PROTOCOLS else None
+            why = _not_run_reason(protocol, m.name, scenario)
             status = f"not run: {why}" if why else "not finished yet"
             lines.append(f"| {labels[m.name]} | {status} | | | | | | |")
     if len(cells) == 1:
@@ -131,8 +135,7 @@ def headline_table(results, experiments: list[str], protocol: str | None = None)
                 if name not in names:
                     row.append("")
                 elif cell is None:
-                    reason = PROTOCOLS[protocol].not_run_reason(name, scenario) if protocol in PROTOCOLS else None
-                    row.append("n.r." if reason else "…")
+                    row.append("n.r." if _not_run_reason(protocol, name, scenario) else "…")
                 else:
                     text = f"{cell.finals.mean():.1f} ({100 * cell.finals.mean() / CEILINGS[scenario]:.0f} %)"
                     row.append(f"**{text}**" if name == best else text)
@@ -145,14 +148,12 @@ def aggregate_lines(results, experiment: str, protocol: str | None = None) -> li
     of them; a method the protocol leaves out on some scenario is named and left out of the aggregates."""
     methods, scenarios = EXPERIMENTS[experiment]
     labels = {m.name: m.label or m.name for m in methods}
-    spec = PROTOCOLS.get(protocol) if protocol else None
-    left_out = [m.name for m in methods
-                if spec is not None and any(spec.not_run_reason(m.name, s) for s in scenarios)]
+    left_out = [m.name for m in methods if any(_not_run_reason(protocol, m.name, s) for s in scenarios)]
     names = [m.name for m in methods if m.name not in left_out]
-    if any((s, n) not in results for s in scenarios for n in names):
-        return ["Aggregates: not every method has finished every scenario yet.", ""]
     if not names:
         return ["Aggregates: no method runs on every scenario under this protocol.", ""]
+    if any((s, n) not in results for s in scenarios for n in names):
+        return ["Aggregates: not every method has finished every scenario yet.", ""]
     agg = aggregate(results, list(scenarios), names, REFERENCE)
     without = (f"; without {', '.join(labels[n] for n in left_out)}, not run on every scenario under this protocol"
                if left_out else "")

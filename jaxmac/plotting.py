@@ -78,10 +78,16 @@ def plot_curves(curves: list[tuple[str, np.ndarray, np.ndarray]], png_path: str,
     ax.grid(alpha=0.3)
     ax.legend(loc="lower right", fontsize=8)
     fig.tight_layout()
+    save_figure(fig, png_path, pdf)
+    plt.close(fig)
+
+
+def save_figure(fig, png_path: str, pdf: bool = False) -> None:
+    """Write ``fig`` to ``png_path`` and, with ``pdf``, beside it as PDF without a creation date, so that the same
+    data give the same bytes (committed figures change only when their data do)."""
     fig.savefig(png_path)
     if pdf:
-        fig.savefig(png_path.rsplit(".", 1)[0] + ".pdf", metadata={"CreationDate": None})  # reproducible bytes
-    plt.close(fig)
+        fig.savefig(png_path.rsplit(".", 1)[0] + ".pdf", metadata={"CreationDate": None})
 
 
 def plot_learning_curve(csv_path: str, png_path: str, title: str, optimum: float | None = None,
