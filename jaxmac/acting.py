@@ -14,14 +14,15 @@ import jax.numpy as jnp
 
 from envs_jax.policies import uniform_random_actions
 from jaxmac.networks.agent import masked_argmax
+from jaxmac.schedules import linear_schedule
 from jaxmac.targets import joint_conditional_argmax
 
 
 def epsilon_schedule(config, episodes: chex.Array) -> chex.Array:
     """Linear decay from ``eps_start`` to ``eps_end`` over ``eps_decay_episodes`` training episodes, starting
     after ``eps_decay_start`` episodes."""
-    frac = jnp.clip((episodes - config.eps_decay_start) / max(config.eps_decay_episodes, 1), 0.0, 1.0)
-    return config.eps_start + frac * (config.eps_end - config.eps_start)
+    return linear_schedule(episodes, config.eps_decay_start, config.eps_decay_episodes, config.eps_start,
+                           config.eps_end)
 
 
 def epsilon_greedy(key: chex.PRNGKey, q: chex.Array, avail: chex.Array, free: chex.Array, running: chex.Array,

@@ -21,6 +21,7 @@ from jaxmac.buffer import windows
 from jaxmac.losses import masked_mean, td_mse
 from jaxmac.networks.agent import masked_argmax
 from jaxmac.networks.drqn import AgentDRQN
+from jaxmac.schedules import linear_schedule
 from jaxmac.targets import gather_q
 
 
@@ -86,5 +87,5 @@ def agents_step(net: AgentDRQN, params, carry, ts, key, epsilon, keep_history: b
 def hysteresis(settings, config, episodes: chex.Array) -> chex.Array:
     """β linear from ``hysteresis_start`` to ``hysteresis_end`` over ``hysteresis_episodes`` episodes after
     ``start_train_episodes`` (the originals' ``dynamic_h``)."""
-    frac = jnp.clip((episodes - config.start_train_episodes) / settings.hysteresis_episodes, 0.0, 1.0)
-    return settings.hysteresis_start + frac * (settings.hysteresis_end - settings.hysteresis_start)
+    return linear_schedule(episodes, config.start_train_episodes, settings.hysteresis_episodes,
+                           settings.hysteresis_start, settings.hysteresis_end)

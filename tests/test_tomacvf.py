@@ -290,6 +290,12 @@ def test_overestimate_weight_downweights_only_positive_td_errors():
     assert float(jax.jit(td_mse)(delta, mask, jnp.float32(0.25))) == pytest.approx((0.25 * 4 + 4 + 0.25 * 1) / 3)
     with pytest.raises(ValueError, match=r"overestimate_weight=0.0 must be in \(0, 1\]"):
         TINY.override(overestimate_weight=0.0)
+    with pytest.raises(ValueError, match=r"overestimate_weight_end=1.5 must be in \(0, 1\]"):
+        TINY.override(overestimate_weight_end=1.5, overestimate_anneal_episodes=10)
+    with pytest.raises(ValueError, match=r"overestimate_anneal_start=-1 must be >= 0"):
+        TINY.override(overestimate_anneal_start=-1, overestimate_anneal_episodes=10)
+    with pytest.raises(ValueError, match=r"overestimate_weight_end=0.5 .* overestimate_anneal_episodes=0 turns off"):
+        TINY.override(overestimate_weight_end=0.5)
 
 
 @pytest.mark.parametrize("end", ["truncated", "terminated"])

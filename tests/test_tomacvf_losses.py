@@ -411,6 +411,26 @@ def test_sjert_loss_matches_the_reference(case, env, episodes, nets, params):
     np.testing.assert_allclose(loss, micro + lam * macro, rtol=1e-5)
 
 
+@pytest.mark.parametrize("episodes_so_far, weight", [(50, 0.2), (300, 0.6), (900, 1.0)])
+def test_annealed_overestimate_weight_is_the_scheduled_constant(episodes_so_far, weight, env, episodes, nets, params):
+    """``overestimate_weight`` annealed from 0.2 to 1 over episodes 100–500: at 50 episodes the losses are the
+    reference's with the constant weight 0.2, at 300 with 0.6 (half way), at 900 with plain MSE (1); the weight
+    in force is logged as a metric."""
+    batch, raws = episodes
+    online, target = params
+    annealed = BASE.override(n_step=3, macro_loss_weight=2.5, overestimate_weight=0.2, overestimate_weight_end=1.0,
+                             overestimate_anneal_start=100, overestimate_anneal_episodes=400)
+    constant = BASE.override(n_step=3, macro_loss_weight=2.5, overestimate_weight=weight)
+    micro, macro, _, _, _ = reference_sjert(raws, nets, online, target, constant.algo, GAMMA)
+    algo = make_algorithm(annealed, env)
+    progress = PROGRESS.replace(episodes=jnp.int32(episodes_so_far))
+    loss, metrics = jax.jit(algo.loss)(online, target, batch, jax.random.key(0), progress)
+    np.testing.assert_allclose(float(metrics["overestimate_weight"]), weight, rtol=1e-6)
+    np.testing.assert_allclose(float(metrics["micro_loss"]), micro, rtol=1e-5)
+    np.testing.assert_allclose(float(metrics["macro_loss"]), macro, rtol=1e-5)
+    np.testing.assert_allclose(float(loss), micro + 2.5 * macro, rtol=1e-5)
+
+
 def test_mac_jert_loss_matches_the_reference(env, episodes, nets, params):
     """The Mac-JERT ablation (``buffer="mac_jert"``): the single TD loss over the squeezed joint decision points
     (GRU and mixer on the squeezed rows) equals the loop reference; ``macro_loss`` is 0."""

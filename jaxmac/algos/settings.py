@@ -60,6 +60,12 @@ class ToMacVFSettings:
     # weighting (OW-QMIX's weighting without its Q*, hysteretic Q-learning): keeps the value of a joint
     # action that succeeded when partners' exploration makes it fail elsewhere
     overestimate_weight: float = 1.0
+    # anneal that weight linearly to overestimate_weight_end over overestimate_anneal_episodes training episodes,
+    # starting after overestimate_anneal_start; 0 episodes (the default) keeps it constant. Less optimism late in
+    # training lets over-valued joint actions that no longer pay fall back to their real value
+    overestimate_weight_end: float = 1.0
+    overestimate_anneal_start: int = 0
+    overestimate_anneal_episodes: int = 0
     buffer: str = "mac_sjert"  # D16 ablation: "mac_jert"
     mixer: str = "qmix"  # D19: "qmix", "vdn", "qplex" (ToMacVF_QPLEX), "qtran" (ToMacVF_Qtran)
     mixer_params: str = "atpg"  # D16: "state" = ToMacVF w/o ATPG (the mixer conditioned on s_t only)
@@ -108,6 +114,15 @@ class ToMacVFSettings:
         if not 0.0 <= self.attn_delta < 1.0:
             raise ValueError(f"{owner}: attn_delta={self.attn_delta!r} must be in [0, 1)")
         _check_fraction(owner, "overestimate_weight", self.overestimate_weight)
+        _check_fraction(owner, "overestimate_weight_end", self.overestimate_weight_end)
+        for name in ("overestimate_anneal_start", "overestimate_anneal_episodes"):
+            if getattr(self, name) < 0:
+                raise ValueError(f"{owner}: {name}={getattr(self, name)!r} must be >= 0 (episodes; "
+                                 f"overestimate_anneal_episodes=0 keeps overestimate_weight constant)")
+        if self.overestimate_anneal_episodes == 0 and (self.overestimate_weight_end, self.overestimate_anneal_start) != (1.0, 0):
+            raise ValueError(f"{owner}: overestimate_weight_end={self.overestimate_weight_end!r} and "
+                             f"overestimate_anneal_start={self.overestimate_anneal_start!r} shape an annealing that "
+                             f"overestimate_anneal_episodes=0 turns off; set overestimate_anneal_episodes >= 1 with them")
         if self.macro_loss_weight < 0:
             raise ValueError(f"{owner}: macro_loss_weight={self.macro_loss_weight!r} must be >= 0")
 

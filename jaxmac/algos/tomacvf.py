@@ -77,6 +77,7 @@ from jaxmac.networks import (
     timestep_inputs,
 )
 from jaxmac.networks.mixers import mix_actions, qtran_penalties
+from jaxmac.schedules import linear_schedule
 from jaxmac.targets import admissible_actions, conditional_greedy
 
 
@@ -121,7 +122,15 @@ def make_tomacvf(config: TrainConfig, env: MacroEnv) -> Algorithm:
     squeezed = settings.buffer == "mac_jert"
     qtran = mixer_cfg.family == "qtran"
     lam = settings.macro_loss_weight
-    weight = settings.overestimate_weight
+
+    def overestimate_weight(progress):
+        """The TD weight where Q_tot is above its target: a python float when constant (bit-identical to a
+        plain constant), else the scheduled f32[]."""
+        if settings.overestimate_anneal_episodes == 0:
+            return settings.overestimate_weight
+        return linear_schedule(progress.episodes, settings.overestimate_anneal_start,
+                               settings.overestimate_anneal_episodes, settings.overestimate_weight,
+                               settings.overestimate_weight_end)
 
     def init_params(key):
         k_agent, k_mixer = jax.random.split(key)
@@ -174,9 +183,10 @@ def make_tomacvf(config: TrainConfig, env: MacroEnv) -> Algorithm:
         return {"qtran_opt_loss": masked_mean(opt**2, mask), "qtran_nopt_loss": masked_mean(nopt**2, mask)}
 
     # --- learning on Mac-SJERT ------------------------------------------------------------
-    def sjert_terms(params, target_params, batch: EpisodeSlot, packed=None):
+    def sjert_terms(params, target_params, batch: EpisodeSlot, progress, packed=None):
         """Loss terms {micro_loss, macro_loss, QTRAN's (``qtran`` only)}, unweighted, and metrics; ``packed`` =
         (plan, rows) runs the networks on the episodes packed into that many rows (same values)."""
+        weight = overestimate_weight(progress)
         inputs, tau = slot_inputs(batch, obs_mode)
         state = batch.decode_state()
         if packed is None:
@@ -205,10 +215,11 @@ def make_tomacvf(config: TrainConfig, env: MacroEnv) -> Algorithm:
                            macro.boot_mac)
         y_macro = jax.lax.stop_gradient(macro.reward + macro.discount * boot_m)
         terms["macro_loss"] = td_mse(q_tot_macro - y_macro, macro.mask, weight)
-        return terms, {"q_tot_mean": masked_mean(q_tot_micro, micro.mask)}
+        return terms, {"q_tot_mean": masked_mean(q_tot_micro, micro.mask)} | weight_metric(weight)
 
     # --- learning on Mac-JERT (ablation) ---------------------------------------------------
-    def jert_terms(params, target_params, batch: EpisodeSlot):
+    def jert_terms(params, target_params, batch: EpisodeSlot, progress):
+        weight = overestimate_weight(progress)
         jv, inputs, tau, state = jert_sequence(batch)
         q, w = forward(params, inputs, tau, state)
         q_tgt, w_tgt = forward(target_params, inputs, tau, state)
@@ -221,7 +232,7 @@ def make_tomacvf(config: TrainConfig, env: MacroEnv) -> Algorithm:
         y = jax.lax.stop_gradient(jv.reward + jv.discount * boot)
         terms = {"micro_loss": td_mse(q_tot_now - y, jv.mask, weight), "macro_loss": jnp.zeros(())}
         terms |= qtran_terms(w_now, q_now, jv.mac, jv.avail, free, jv.mask)
-        return terms, {"q_tot_mean": masked_mean(q_tot_now, jv.mask)}
+        return terms, {"q_tot_mean": masked_mean(q_tot_now, jv.mask)} | weight_metric(weight)
 
     terms_of = jert_terms if squeezed else sjert_terms
     term_weights = {"micro_loss": 1.0, "macro_loss": lam, "qtran_opt_loss": settings.qtran_opt_weight,
@@ -229,8 +240,8 @@ def make_tomacvf(config: TrainConfig, env: MacroEnv) -> Algorithm:
 
     def loss_of(terms_fn):
         def loss(params, target_params, batch: EpisodeSlot, key, progress):
-            del key, progress
-            terms, metrics = terms_fn(params, target_params, batch)
+            del key
+            terms, metrics = terms_fn(params, target_params, batch, progress)
             return weighted_sum(terms, term_weights), metrics | terms
 
         return loss
@@ -251,7 +262,7 @@ def make_tomacvf(config: TrainConfig, env: MacroEnv) -> Algorithm:
             def with_rows(rows):
                 # as many rows as episodes: nothing to gain from packing, the networks run on the slots themselves
                 packed = None if rows == batch.length.shape[0] else (plan, rows)
-                terms_fn = lambda p, t, b: sjert_terms(p, t, b, packed=packed)  # noqa: E731
+                terms_fn = lambda p, t, b, pr: sjert_terms(p, t, b, pr, packed=packed)  # noqa: E731
                 return make_update(terms_fn)(params, target_params, opt_state, batch, key, progress)
 
             sizes = packed_row_sizes(batch.length.shape[0], config.length_buckets)
@@ -262,6 +273,11 @@ def make_tomacvf(config: TrainConfig, env: MacroEnv) -> Algorithm:
                                  lambda batch: jnp.max(batch.length))
     return Algorithm(name="tomacvf", init_params=init_params, init_carry=init_carry, act=act, loss=loss,
                      optimizer=optimizer, update=update)
+
+
+def weight_metric(weight) -> dict:
+    """``{"overestimate_weight": w}`` when the weight is scheduled (a metric worth a column), else nothing."""
+    return {} if isinstance(weight, (int, float)) else {"overestimate_weight": weight}
 
 
 def weighted_sum(terms: dict, weights: dict) -> jax.Array:
@@ -278,12 +294,12 @@ def sequential_update(terms_of, term_weights, optimizer):
     lam = term_weights["macro_loss"]
 
     def micro_part(params, target_params, batch, key, progress):
-        terms, metrics = terms_of(params, target_params, batch)
+        terms, metrics = terms_of(params, target_params, batch, progress)
         terms.pop("macro_loss")
         return weighted_sum(terms, term_weights), metrics | terms
 
     def macro_part(params, target_params, batch, key, progress):
-        terms, _ = terms_of(params, target_params, batch)
+        terms, _ = terms_of(params, target_params, batch, progress)
         return lam * terms["macro_loss"], {"macro_loss": terms["macro_loss"]}
 
     micro_step = gradient_update(micro_part, optimizer)
