@@ -5,14 +5,42 @@ from __future__ import annotations
 import os
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 from jaxmac.collect import episode_returns, run_episode
 
 
+def decision_timesteps(reset_ts, traj):
+    """The timestep each step's actions were chosen on (reset, then the first H − 1 of ``traj``): leaves [H, ...]."""
+    return jax.tree_util.tree_map(lambda first, rest: jnp.concatenate([first[None], rest[:-1]]), reset_ts, traj)
+
+
+def values_along(algo, params, reset_ts, traj) -> np.ndarray:
+    """f32[H, n, A]: ``algo.values`` at every step of a greedy episode (on the timestep each choice was made on,
+    the carry stepped by ``act`` as while acting)."""
+    ts_seq = decision_timesteps(reset_ts, traj)
+    num_agents = reset_ts.mac.shape[0]
+
+    def body(carry, ts):
+        q = algo.values(params, carry, ts)
+        carry, _ = algo.act(params, carry, ts, jax.random.key(0), 0.0)
+        return carry, q
+
+    return np.asarray(jax.lax.scan(body, algo.init_carry(num_agents), ts_seq)[1])
+
+
+def values_line(names: tuple[str, ...], q: np.ndarray, avail: np.ndarray) -> str:
+    """``Q: Push 1.10  GT_BB1 1.02 ...``: an agent's available macro-actions and their Q_i, best first."""
+    order = [int(a) for a in np.argsort(-q, kind="stable") if avail[a]]
+    return "Q: " + "  ".join(f"{names[a]} {q[a]:.2f}" for a in order)
+
+
 def greedy_episode_frames(out_dir: str, seed_index: int = 0, key: int = 0) -> tuple[list[str], dict]:
     """Text frames (reset and every step until the episode ends) of one greedy episode of the
-    given seed's newest checkpoint, and that episode's returns."""
+    given seed's newest checkpoint, and that episode's returns. For learners with per-agent utilities
+    (``Algorithm.values``), each frame after a choice lists every free agent's best available macro-actions with
+    their Q_i — what the greedy choice was made from."""
     from jaxmac.run import load_run
 
     trainer, state, chunks, meta = load_run(out_dir)
@@ -27,9 +55,17 @@ def greedy_episode_frames(out_dir: str, seed_index: int = 0, key: int = 0) -> tu
     reset_state, _ = env.reset(jax.random.key(key))
     frames = [f"t=0 (reset)\n{env.render(reset_state)}"]
     rewards = np.asarray(traj.reward)
+    if algo.values is not None:
+        q = values_along(algo, params, reset_ts, traj)
+        chosen_on = decision_timesteps(reset_ts, traj)
+        free, avail = np.asarray(chosen_on.mac_done), np.asarray(chosen_on.avail_actions)
     for t in range(length):
         frame_state = jax.tree_util.tree_map(lambda x, t=t: x[t], states)
-        frames.append(f"after step {t} (reward {rewards[t]:+.1f})\n{env.render(frame_state)}")
+        frame = f"after step {t} (reward {rewards[t]:+.1f})\n{env.render(frame_state)}"
+        if algo.values is not None:
+            frame += "".join(f"\nagent {i} chose at step {t} from {values_line(env.spec.action_names[i], q[t, i], avail[t, i])}"
+                             for i in range(env.spec.num_agents) if free[t, i])
+        frames.append(frame)
     stats["chunks_trained"] = chunks
     return frames, stats
 

@@ -60,6 +60,8 @@ class Algorithm:
         training, given the episodes trained so far (e.g. centralised exploration for a while)
     greedy_act(params, carry, ts, key, epsilon) -> (carry, actions): for a stochastic evaluation policy (the
         actor-critics evaluate by sampling, as their originals), its greedy version, evaluated and logged beside it
+    values(params, carry, ts) -> f32[n, A]: the per-agent utilities Q_i the greedy policy maximises at this step
+        (carry as ``act`` receives it); value learners with per-agent utilities give it, ``jaxmac eval`` prints it
     """
 
     name: str
@@ -73,6 +75,7 @@ class Algorithm:
     sample: Sample | None = None
     behaviour_act: BehaviourAct | None = None
     greedy_act: Act | None = None
+    values: Callable[[Any, Any, Any], chex.Array] | None = None
 
     def __post_init__(self):
         if self.update is None and self.loss is None:

@@ -140,12 +140,16 @@ def make_tomacvf(config: TrainConfig, env: MacroEnv) -> Algorithm:
     def init_carry(num_agents: int):
         return initial_carry(agent_cfg)
 
-    def act(params, carry, ts, key, epsilon):
+    def step_values(params, carry, ts):
+        """(Q_i f32[n, A] of every macro-action at this step, the stepped carry)."""
         inputs = timestep_inputs(ts)
         if obs_mode == "macro":
             inputs = inputs.replace(obs=jnp.asarray(ts.obs_macro, jnp.float32))
         tau = jnp.zeros_like(ts.t_m)  # free agents value their choice at τ = 0
-        q, new_carry = net.apply(params["agent"], inputs, carry, tau, method="step")
+        return net.apply(params["agent"], inputs, carry, tau, method="step")
+
+    def act(params, carry, ts, key, epsilon):
+        q, new_carry = step_values(params, carry, ts)
         if squeezed:  # the GRU only sees joint decision points
             new_carry = jnp.where(jnp.any(ts.mac_done), new_carry, carry)
         return new_carry, epsilon_greedy(key, q, ts.avail_actions, ts.mac_done, ts.mac, epsilon)
@@ -272,7 +276,7 @@ def make_tomacvf(config: TrainConfig, env: MacroEnv) -> Algorithm:
         update = length_bucketed(make_update(terms_of), config.length_buckets, lambda batch: batch.config.horizon,
                                  lambda batch: jnp.max(batch.length))
     return Algorithm(name="tomacvf", init_params=init_params, init_carry=init_carry, act=act, loss=loss,
-                     optimizer=optimizer, update=update)
+                     optimizer=optimizer, update=update, values=lambda p, c, ts: step_values(p, c, ts)[0])
 
 
 def weight_metric(weight) -> dict:
