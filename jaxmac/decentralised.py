@@ -68,16 +68,25 @@ def hysteretic_double_q_loss(net: AgentDRQN, params, target_params, batch: windo
     return loss, metrics, view
 
 
+def agents_values(net: AgentDRQN, params, carry, ts, keep_history: bool):
+    """Every agent's Q f32[n, A] at one primitive step (from its history when ``keep_history``, else from a zero
+    state; a new episode starts from zero) and the GRU state after it, f32[n, h] (``agents_step`` decides whom it
+    steps)."""
+    carry = jnp.where(ts.t == 0, jnp.zeros_like(carry), carry)
+    start = carry if keep_history else jnp.zeros_like(carry)
+    x = jnp.asarray(ts.obs_macro, jnp.float32)[None]  # [1, n, O]
+    q, new_carry = net.apply(params, x, jnp.zeros((1,), bool), start)
+    return q[0], new_carry
+
+
 def agents_step(net: AgentDRQN, params, carry, ts, key, epsilon, keep_history: bool, joint_history: bool = False):
     """Decentralised ε-greedy at one primitive step: each free agent chooses from its own net; an agent's GRU steps
     only at its own decisions (Mac-CERT history), or with ``joint_history`` at every joint decision point (Mac-JERT
     history, AVF), and only with ``keep_history`` (else each decision is valued from a zero state).
     ``carry`` f32[n, h]. Returns ``(carry, actions i32[n])``."""
+    q, new_carry = agents_values(net, params, carry, ts, keep_history)
     carry = jnp.where(ts.t == 0, jnp.zeros_like(carry), carry)
-    start = carry if keep_history else jnp.zeros_like(carry)
-    x = jnp.asarray(ts.obs_macro, jnp.float32)[None]  # [1, n, O]
-    q, new_carry = net.apply(params, x, jnp.zeros((1,), bool), start)
-    actions = epsilon_greedy(key, q[0], ts.avail_actions, ts.mac_done, ts.mac, epsilon)
+    actions = epsilon_greedy(key, q, ts.avail_actions, ts.mac_done, ts.mac, epsilon)
     if keep_history:
         steps = jnp.any(ts.mac_done) if joint_history else ts.mac_done[:, None]
         carry = jnp.where(steps, new_carry, carry)

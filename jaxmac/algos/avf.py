@@ -26,7 +26,7 @@ from envs_jax.core import MacroEnv
 from jaxmac.algos.base import Algorithm, default_optimizer
 from jaxmac.buffer import windows
 from jaxmac.config import TrainConfig
-from jaxmac.decentralised import agents_step, init_agent_drqn, sequence_q
+from jaxmac.decentralised import agents_step, agents_values, init_agent_drqn, sequence_q
 from jaxmac.losses import masked_mean, td_mse
 from jaxmac.networks.drqn import AgentDRQN
 from jaxmac.networks.mixers import Mixer, MixerConfig, init_mixer_params, mix_actions
@@ -83,4 +83,5 @@ def make_avf(config: TrainConfig, env: MacroEnv) -> Algorithm:
         act=lambda p, c, ts, k, e: step(p, c, ts, k, e, True), loss=loss, optimizer=default_optimizer(config),
         behaviour_act=lambda p, c, ts, k, e, episodes: step(p, c, ts, k, e, settings.h_explore),
         store=windows.store_views(jert=True, cert=False),
-        sample=windows.window_source(config.batch_size, settings.trace_len))
+        sample=windows.window_source(config.batch_size, settings.trace_len),
+        values=lambda p, c, ts: agents_values(net, p["agent"], c, ts, True)[0])

@@ -71,4 +71,5 @@ def make_macdec_ddrqn(config: TrainConfig, env: MacroEnv) -> Algorithm:
     return Algorithm(name="macdec_ddrqn", init_params=init_params, init_carry=init_carry, act=act, loss=loss,
                      optimizer=default_optimizer(config),
                      store=windows.store_views(jert=True, cert=True),
-                     sample=windows.window_source(config.batch_size, settings.trace_len), behaviour_act=behaviour_act)
+                     sample=windows.window_source(config.batch_size, settings.trace_len), behaviour_act=behaviour_act,
+                     values=lambda p, c, ts: decentralised.agents_values(dec, p["dec"], c["dec"], ts, True)[0])

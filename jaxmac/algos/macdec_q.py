@@ -38,4 +38,4 @@ def make_macdec_q(config: TrainConfig, env: MacroEnv) -> Algorithm:
         init_carry=lambda n: jnp.zeros((n, settings.rnn_size), jnp.float32), act=act, loss=loss,
         optimizer=default_optimizer(config), store=windows.store_views(jert=False, cert=True),
         sample=windows.window_source(config.batch_size, settings.trace_len),
-        behaviour_act=behaviour_act)
+        behaviour_act=behaviour_act, values=lambda p, c, ts: decentralised.agents_values(net, p, c, ts, True)[0])
