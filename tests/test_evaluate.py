@@ -38,3 +38,36 @@ def test_greedy_choices_are_the_argmax_of_the_values_printed_beside_them(algorit
     line = values_line(env.spec.action_names[0], q[0, 0], avail[0, 0])
     assert line.startswith(f"Q: {env.spec.action_names[0][actions[0, 0]]} ")
     assert len(line[3:].split("  ")) == int(avail[0, 0].sum())  # every available macro-action, once
+
+
+def test_qtot_along_a_greedy_episode_is_what_the_loss_fits():
+    """``experiments/qtot_along_episode.py``: on a greedy episode every agent takes its greedy (or running) action,
+    so the greedy joint Q_tot at the episode's rows is the Q_tot of the taken actions that ToMacVF's micro-TD loss
+    fits — its mean equals the loss's ``q_tot_mean`` on the same slot; the return-to-go is the discounted sum."""
+    import pathlib
+    import sys
+
+    import jax.numpy as jnp
+
+    from jaxmac.algos.base import Progress
+    from jaxmac.buffer.episode import SlotConfig, write_episode
+
+    sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1] / "experiments"))
+    from qtot_along_episode import qtot_rows
+
+    config = scenario_config("boxpushing-6x6", tiny=True)
+    env = make_env(config)
+    algo = make_algorithm(config, env)
+    params = algo.init_params(jax.random.key(3))
+    reset_ts, traj = jax.jit(lambda p, k: run_episode(env, algo.act, algo.init_carry, p, k, 0.0)[:2])(
+        params, jax.random.key(5))
+    q_tot, to_go, length = qtot_rows(config, env, params, reset_ts, traj)
+    assert q_tot.shape == (env.spec.horizon + 1,) and 4 < length
+    batch = jax.tree_util.tree_map(lambda x: x[None], write_episode(SlotConfig.from_spec(env.spec), reset_ts, traj))
+    progress = Progress(episodes=jnp.int32(0), env_steps=jnp.int32(0), updates=jnp.int32(0))
+    _, metrics = jax.jit(algo.loss)(params, params, batch, jax.random.key(0), progress)
+    np.testing.assert_allclose(q_tot[:length].mean(), float(metrics["q_tot_mean"]), rtol=1e-5, atol=1e-6)
+    reward = np.asarray(traj.reward)
+    gamma = env.spec.discount
+    np.testing.assert_allclose(to_go[0], sum(gamma**t * reward[t] for t in range(length)), rtol=1e-5)
+    np.testing.assert_allclose(to_go[length - 1], reward[length - 1], rtol=1e-6)

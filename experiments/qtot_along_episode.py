@@ -1,0 +1,79 @@
+"""ToMacVF's Q_tot along one greedy episode of a trained run, against the discounted return that episode received.
+
+    python experiments/qtot_along_episode.py RUN_FOLDER [--seed-index I] [--key K]
+
+Plays one greedy episode of seed I at the run's newest checkpoint, writes it into an episode slot as training
+does, and prints for rows 0 … H the Q_tot of the greedy joint action (conditional on busy agents, D9) beside the
+discounted return-to-go from that row. Row H of a truncated episode is the time-limit bootstrap: a target of the
+last step, never itself a prediction. A seed whose values are right shows the two columns close; an over-valued
+convention shows Q_tot far above what the episode pays.
+"""
+
+from __future__ import annotations
+
+import argparse
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+
+def qtot_along_episode(run_dir: str, seed_index: int = 0, key: int = 0) -> tuple[np.ndarray, np.ndarray, int]:
+    """``qtot_rows`` of one greedy episode (PRNG key ``key``) of a run's seed at its newest checkpoint."""
+    from jaxmac.collect import run_episode
+    from jaxmac.run import load_run
+
+    trainer, state, _, _ = load_run(run_dir)
+    config, env, algo = trainer.config, trainer.env, trainer.algorithm
+    if config.algorithm != "tomacvf":
+        raise ValueError(f"{run_dir} trains {config.algorithm!r}; this reads ToMacVF's mixer (algorithm 'tomacvf')")
+    params = jax.tree_util.tree_map(lambda x: x[seed_index], state.params)
+    reset_ts, traj, _ = jax.jit(lambda p, k: run_episode(env, algo.act, algo.init_carry, p, k, 0.0))(
+        params, jax.random.key(key))
+    return qtot_rows(config, env, params, reset_ts, traj)
+
+
+def qtot_rows(config, env, params, reset_ts, traj) -> tuple[np.ndarray, np.ndarray, int]:
+    """(Q_tot f32[H + 1] of the greedy joint action at every row of the episode's slot, the discounted
+    return-to-go f32[length] from every step, the episode's length). The rollout is one episode (leaves
+    ``[H, ...]``) of ToMacVF's greedy policy with ``params``."""
+    from jaxmac.algos.tomacvf import free_at_rows, network_configs
+    from jaxmac.buffer.episode import SlotConfig, write_episode
+    from jaxmac.networks import Mixer, TemporalAgentNet, slot_inputs
+    from jaxmac.networks.agent import initial_carry
+    from jaxmac.networks.mixers import mix_actions
+    from jaxmac.targets import admissible_actions, conditional_greedy
+
+    agent_cfg, mixer_cfg = network_configs(config, env)
+    net, mixer = TemporalAgentNet(agent_cfg), Mixer(mixer_cfg)
+    slot_config = SlotConfig.from_spec(env.spec)
+    batch = jax.tree_util.tree_map(lambda x: x[None], write_episode(slot_config, reset_ts, traj))
+    inputs, tau = slot_inputs(batch, config.algo.obs_mode)
+    q, _, _ = net.apply(params["agent"], inputs, initial_carry(agent_cfg, (1,)), tau)
+    weights, _ = mixer.apply(params["mixer"], batch.decode_state(), inputs)
+    free = jnp.concatenate([free_at_rows(batch.mac_done), batch.mac_done[:, -1:]], 1)  # rows 0 … H
+    pinned = jnp.concatenate([batch.mac, batch.mac[:, -1:]], 1)
+    greedy = conditional_greedy(q, batch.avail, free, pinned)
+    q_tot = np.asarray(mix_actions(weights, q, greedy, admissible_actions(batch.avail, free, pinned)))[0]
+    length = int(batch.length[0])
+    reward, gamma = np.asarray(traj.reward)[:length], env.spec.discount
+    to_go = np.array([np.sum(reward[t:] * gamma ** np.arange(length - t)) for t in range(length)])
+    return q_tot, to_go, length
+
+
+def main(argv=None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("run_dir")
+    parser.add_argument("--seed-index", type=int, default=0)
+    parser.add_argument("--key", type=int, default=0, help="the episode's PRNG key")
+    args = parser.parse_args(argv)
+    q_tot, to_go, length = qtot_along_episode(args.run_dir, args.seed_index, args.key)
+    print(f"{args.run_dir}, seed index {args.seed_index}: greedy episode of {length} steps")
+    print(" row   Q_tot(greedy)   return-to-go")
+    for t in sorted({0, 1, 5, 10, 20, 40, 60, 80, 90, length - 1, length} & set(range(length + 1))):
+        suffix = f"{to_go[t]:14.1f}" if t < length else "   (bootstrap row)"
+        print(f"{t:4d} {q_tot[t]:15.1f} {suffix}")
+
+
+if __name__ == "__main__":
+    main()
