@@ -16,18 +16,16 @@ def decision_timesteps(reset_ts, traj):
     return jax.tree_util.tree_map(lambda first, rest: jnp.concatenate([first[None], rest[:-1]]), reset_ts, traj)
 
 
-def values_along(algo, params, reset_ts, traj) -> np.ndarray:
-    """f32[H, n, A]: ``algo.values`` at every step of a greedy episode (on the timestep each choice was made on,
-    the carry stepped by ``act`` as while acting)."""
-    ts_seq = decision_timesteps(reset_ts, traj)
-    num_agents = reset_ts.mac.shape[0]
+def values_along(algo, params, chosen_on) -> np.ndarray:
+    """f32[H, n, A]: ``algo.values`` at every step of a greedy episode, given the timesteps its choices were made on
+    (``decision_timesteps``), with the carry stepped by ``act`` as while acting."""
 
     def body(carry, ts):
         q = algo.values(params, carry, ts)
         carry, _ = algo.act(params, carry, ts, jax.random.key(0), 0.0)
         return carry, q
 
-    return np.asarray(jax.lax.scan(body, algo.init_carry(num_agents), ts_seq)[1])
+    return np.asarray(jax.lax.scan(body, algo.init_carry(chosen_on.mac.shape[1]), chosen_on)[1])
 
 
 def values_line(names: tuple[str, ...], q: np.ndarray, avail: np.ndarray) -> str:
@@ -56,14 +54,15 @@ def greedy_episode_frames(out_dir: str, seed_index: int = 0, key: int = 0) -> tu
     frames = [f"t=0 (reset)\n{env.render(reset_state)}"]
     rewards = np.asarray(traj.reward)
     if algo.values is not None:
-        q = values_along(algo, params, reset_ts, traj)
         chosen_on = decision_timesteps(reset_ts, traj)
+        q = values_along(algo, params, chosen_on)
         free, avail = np.asarray(chosen_on.mac_done), np.asarray(chosen_on.avail_actions)
     for t in range(length):
         frame_state = jax.tree_util.tree_map(lambda x, t=t: x[t], states)
         frame = f"after step {t} (reward {rewards[t]:+.1f})\n{env.render(frame_state)}"
         if algo.values is not None:
-            frame += "".join(f"\nagent {i} chose at step {t} from {values_line(env.spec.action_names[i], q[t, i], avail[t, i])}"
+            names = env.spec.action_names
+            frame += "".join(f"\nagent {i} chose at step {t} from {values_line(names[i], q[t, i], avail[t, i])}"
                              for i in range(env.spec.num_agents) if free[t, i])
         frames.append(frame)
     stats["chunks_trained"] = chunks

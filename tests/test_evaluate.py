@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from jaxmac.algos import make_algorithm
-from jaxmac.collect import run_episode
+from jaxmac.collect import episode_returns, run_episode
 from jaxmac.config import make_env, scenario_config
 from jaxmac.evaluate import decision_timesteps, values_along, values_line
 
@@ -22,12 +22,12 @@ def test_greedy_choices_are_the_argmax_of_the_values_printed_beside_them(algorit
     params = algo.init_params(jax.random.key(3))
     reset_ts, traj = jax.jit(lambda p, k: run_episode(env, algo.act, algo.init_carry, p, k, 0.0)[:2])(
         params, jax.random.key(5))
-    q = values_along(algo, params, reset_ts, traj)
     chosen_on = decision_timesteps(reset_ts, traj)
+    q = values_along(algo, params, chosen_on)
     free, avail = np.asarray(chosen_on.mac_done), np.asarray(chosen_on.avail_actions)
     actions, running = np.asarray(traj.mac), np.asarray(chosen_on.mac)
     assert q.shape == (env.spec.horizon, env.spec.num_agents, avail.shape[-1])
-    steps = int(np.argmax(np.asarray(traj.done))) + 1 if np.asarray(traj.done).any() else env.spec.horizon
+    steps = int(episode_returns(traj, env.spec.discount)["length"])
     assert free[:steps].sum() >= 4 and (~free[:steps]).sum() > 0, "need free and busy choices"
     for t in range(steps):
         for i in range(env.spec.num_agents):

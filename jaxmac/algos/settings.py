@@ -119,10 +119,11 @@ class ToMacVFSettings:
             if getattr(self, name) < 0:
                 raise ValueError(f"{owner}: {name}={getattr(self, name)!r} must be >= 0 (episodes; "
                                  f"overestimate_anneal_episodes=0 keeps overestimate_weight constant)")
-        if self.overestimate_anneal_episodes == 0 and (self.overestimate_weight_end, self.overestimate_anneal_start) != (1.0, 0):
-            raise ValueError(f"{owner}: overestimate_weight_end={self.overestimate_weight_end!r} and "
-                             f"overestimate_anneal_start={self.overestimate_anneal_start!r} shape an annealing that "
-                             f"overestimate_anneal_episodes=0 turns off; set overestimate_anneal_episodes >= 1 with them")
+        shape = (self.overestimate_weight_end, self.overestimate_anneal_start)
+        if self.overestimate_anneal_episodes == 0 and shape != (1.0, 0):
+            raise ValueError(f"{owner}: overestimate_weight_end={shape[0]!r} and overestimate_anneal_start="
+                             f"{shape[1]!r} shape an annealing that overestimate_anneal_episodes=0 turns off; set "
+                             f"overestimate_anneal_episodes >= 1 with them")
         if self.macro_loss_weight < 0:
             raise ValueError(f"{owner}: macro_loss_weight={self.macro_loss_weight!r} must be >= 0")
 
