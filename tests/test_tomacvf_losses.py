@@ -15,9 +15,10 @@ steps and agents, without ``jaxmac.buffer.views``, ``slot_inputs``/``jert_sequen
   checked against its sequence apply, and the mixer weights by applying ``Mixer`` to the same rows; mixing
   (QMIX: ``w2 · ELU(Σ_i Q_i W1[i] + b1) + b2``) is redone in NumPy;
 * micro-TD (D11): at every valid step t, ``Σ_{k<m} γ^k r_{t+k} + γ^m Q̄_tot(t+m)`` with ``m = min(n, L − t)``, no
-  bootstrap when the episode terminated within the m steps;
+  bootstrap when the episode terminated within the m steps (or was truncated, with ``bootstrap_time_limit`` off);
 * macro-TD (D10): per agent and per completed macro-action (ended by ``mac_done`` or by termination), Q_tot at
-  its first row with the joint action executed there, target ``R_m + γ^τ Q̄_tot(end + 1)``;
+  its first row with the joint action executed there, target ``R_m + γ^τ Q̄_tot(end + 1)`` (no bootstrap at the
+  last step as for micro-TD);
 * Mac-JERT (D16): the joint decision points (steps where any macro-action ended), the GRU and mixer run over the
   squeezed rows (frozen macro-observations), target ``R^J + γ^τ Q̄_tot(next decision row)``;
 * Q̄_tot (D9): free agents take the online argmax over their available actions, busy agents keep their running
@@ -60,6 +61,7 @@ EPISODES = [
 SJERT_CASES = {
     "one_step": dict(n_step=1, macro_loss_weight=0.37),
     "three_step_optimistic": dict(n_step=3, macro_loss_weight=2.5, overestimate_weight=0.6),
+    "time_limit_terminal": dict(n_step=3, macro_loss_weight=0.37, bootstrap_time_limit=False),
 }
 
 
@@ -144,6 +146,13 @@ def episode_end(raw):
         if raw.terminated[t] or raw.truncated[t]:
             return t + 1, bool(raw.terminated[t])
     return H, False
+
+
+def last_target_is_terminal(raw, settings):
+    """Whether the target at the episode's last step has no bootstrap: after termination, and after a time-limit
+    truncation when ``bootstrap_time_limit`` is off (not at the slot's end, which is no time limit here)."""
+    length, terminated = episode_end(raw)
+    return terminated or (bool(raw.truncated[length - 1]) and not settings.bootstrap_time_limit)
 
 
 def is_free(raw, row, i):
@@ -280,6 +289,7 @@ def reference_sjert(raws, nets, online, target, settings, gamma):
     micro, macro, q_tots = [], [], []
     for b, raw in enumerate(raws):
         length, terminated = episode_end(raw)
+        terminal_end = last_target_is_terminal(raw, settings)
         n = raw.mac.shape[1]
         rows = row_inputs(raw, range(length + 1), raw.obs_real if settings.obs_mode == "real" else raw.obs_macro)
         q, w = nets(online, rows, ("online", "sjert", settings.obs_mode, b))
@@ -291,7 +301,7 @@ def reference_sjert(raws, nets, online, target, settings, gamma):
         for t in range(length):  # micro-TD, n-step
             m = min(settings.n_step, length - t)
             y = discounted_sum(raw.reward, t, m, gamma)
-            if terminated and t + m == length:
+            if terminal_end and t + m == length:
                 stats.terminal_targets += 1
             else:
                 y += gamma ** m * conditional_target(raw, t + m, t + m, q, q_tg, w_tg, stats)
@@ -308,7 +318,7 @@ def reference_sjert(raws, nets, online, target, settings, gamma):
                     continue
                 duration = t - start + 1
                 y = discounted_sum(raw.reward, start, duration, gamma)
-                if ends_with_episode:
+                if terminal_end and t == length - 1:  # a cut macro-action (above) makes no transition
                     stats.terminal_targets += 1
                 else:
                     y += gamma ** duration * conditional_target(raw, t + 1, t + 1, q, q_tg, w_tg, stats)
@@ -323,7 +333,8 @@ def reference_jert(raws, nets, online, target, settings, gamma):
     stats = Stats()
     deltas, q_tots = [], []
     for raw in raws:
-        length, terminated = episode_end(raw)
+        length, _ = episode_end(raw)
+        terminal_end = last_target_is_terminal(raw, settings)
         n = raw.mac.shape[1]
         kept = [t for t in range(length) if raw.mac_done[t].any()]  # joint decision points end here
         decision_rows = [0] + [t + 1 for t in kept]  # entry k: where transition k starts; k + 1: its bootstrap
@@ -334,7 +345,7 @@ def reference_jert(raws, nets, online, target, settings, gamma):
             start = decision_rows[k]
             tau = step - start + 1
             y = discounted_sum(raw.reward, start, tau, gamma)
-            if terminated and step == length - 1:
+            if terminal_end and step == length - 1:
                 stats.terminal_targets += 1
             else:
                 y += gamma ** tau * conditional_target(raw, step + 1, k + 1, q, q_tg, w_tg, stats)
@@ -409,6 +420,10 @@ def test_sjert_loss_matches_the_reference(case, env, episodes, nets, params):
     lam = config.algo.macro_loss_weight
     assert lam != 1.0
     np.testing.assert_allclose(loss, micro + lam * macro, rtol=1e-5)
+    if not config.algo.bootstrap_time_limit:  # the batch's truncations change both targets
+        bootstrapped = reference_sjert(raws, nets, online, target, BASE.override(**(SJERT_CASES[case] | dict(
+            bootstrap_time_limit=True))).algo, GAMMA)
+        assert abs(bootstrapped[0] - micro) > 1e-3 * micro and abs(bootstrapped[1] - macro) > 1e-3 * macro
 
 
 @pytest.mark.parametrize("episodes_so_far, weight", [(50, 0.2), (300, 0.6), (900, 1.0)])
@@ -431,10 +446,13 @@ def test_annealed_overestimate_weight_is_the_scheduled_constant(episodes_so_far,
     np.testing.assert_allclose(float(loss), micro + 2.5 * macro, rtol=1e-5)
 
 
-def test_mac_jert_loss_matches_the_reference(env, episodes, nets, params):
+@pytest.mark.parametrize("bootstrap_time_limit", [True, False])
+def test_mac_jert_loss_matches_the_reference(bootstrap_time_limit, env, episodes, nets, params):
     """The Mac-JERT ablation (``buffer="mac_jert"``): the single TD loss over the squeezed joint decision points
-    (GRU and mixer on the squeezed rows) equals the loop reference; ``macro_loss`` is 0."""
-    config = BASE.override(buffer="mac_jert", obs_mode="macro", overestimate_weight=0.7, macro_loss_weight=0.37)
+    (GRU and mixer on the squeezed rows) equals the loop reference, bootstrapping at the time limit or not;
+    ``macro_loss`` is 0."""
+    config = BASE.override(buffer="mac_jert", obs_mode="macro", overestimate_weight=0.7, macro_loss_weight=0.37,
+                           bootstrap_time_limit=bootstrap_time_limit)
     batch, raws = episodes
     online, target = params
     expected, q_tot_mean, count, stats = reference_jert(raws, nets, online, target, config.algo, GAMMA)

@@ -66,6 +66,10 @@ class ToMacVFSettings:
     overestimate_weight_end: float = 1.0
     overestimate_anneal_start: int = 0
     overestimate_anneal_episodes: int = 0
+    # D10: True = targets bootstrap at a time-limit truncation (the time limit is not part of the MDP; MacroMARL);
+    # False = the last step of a truncated episode is terminal (``views.time_limit_as_termination``), which anchors
+    # every value at the horizon — right when the agents see the absolute time step (``use_time_pe``)
+    bootstrap_time_limit: bool = True
     buffer: str = "mac_sjert"  # D16 ablation: "mac_jert"
     mixer: str = "qmix"  # D19: "qmix", "vdn", "qplex" (ToMacVF_QPLEX), "qtran" (ToMacVF_Qtran)
     mixer_params: str = "atpg"  # D16: "state" = ToMacVF w/o ATPG (the mixer conditioned on s_t only)

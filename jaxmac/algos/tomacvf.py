@@ -155,6 +155,8 @@ def make_tomacvf(config: TrainConfig, env: MacroEnv) -> Algorithm:
         return new_carry, epsilon_greedy(key, q, ts.avail_actions, ts.mac_done, ts.mac, epsilon)
 
     # --- shared by both buffers ------------------------------------------------------------
+    with_time_limit = (lambda batch: batch) if settings.bootstrap_time_limit else views.time_limit_as_termination
+
     def forward(params, inputs, tau, state):
         b = inputs.t.shape[:-1]
         q, _, _ = net.apply(params["agent"], inputs, initial_carry(agent_cfg, b), tau)
@@ -191,6 +193,7 @@ def make_tomacvf(config: TrainConfig, env: MacroEnv) -> Algorithm:
         """Loss terms {micro_loss, macro_loss, QTRAN's (``qtran`` only)}, unweighted, and metrics; ``packed`` =
         (plan, rows) runs the networks on the episodes packed into that many rows (same values)."""
         weight = overestimate_weight(progress)
+        batch = with_time_limit(batch)
         inputs, tau = slot_inputs(batch, obs_mode)
         state = batch.decode_state()
         if packed is None:
@@ -224,7 +227,7 @@ def make_tomacvf(config: TrainConfig, env: MacroEnv) -> Algorithm:
     # --- learning on Mac-JERT (ablation) ---------------------------------------------------
     def jert_terms(params, target_params, batch: EpisodeSlot, progress):
         weight = overestimate_weight(progress)
-        jv, inputs, tau, state = jert_sequence(batch)
+        jv, inputs, tau, state = jert_sequence(with_time_limit(batch))
         q, w = forward(params, inputs, tau, state)
         q_tgt, w_tgt = forward(target_params, inputs, tau, state)
         kk = jv.mask.shape[-1]

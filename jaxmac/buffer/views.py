@@ -13,7 +13,8 @@ run over all rows); step indices index its ``[H]`` step arrays. All discounts al
 the termination mask: ``target = reward + discount · bootstrap_value``.
 
 * ``micro_view(slot, n_step)``: every valid primitive step, n-step returns (DECISIONS D11),
-  bootstrapping at truncation and at the slot end but not after termination.
+  bootstrapping at truncation and at the slot end but not after termination
+  (``time_limit_as_termination(slot)``: not after truncation either).
 * ``macro_view(slot)``: one row per complete segment of the segment table (D7, D10).
 * ``jert_view(slot)``: Mac-JERT, the steps where any agent's macro-action ended, left-packed.
 * ``cert_view(slot)``: Mac-CERT, per agent the steps where its macro-action ended.
@@ -111,6 +112,15 @@ def micro_view(slot: EpisodeSlot, n_step: int = 1) -> MicroView:
         ret=z(ret), n_steps=z(m), boot_row=z(boot_row), boot_discount=z(discount),
         boot_free=z(free), boot_mac=z(pinned), boot_t_m=z(t_m_next), boot_avail=z(slot.avail[boot_row]),
     )
+
+
+def time_limit_as_termination(slot: EpisodeSlot) -> EpisodeSlot:
+    """``slot`` (any batch shape) with a time-limit truncation flagged as termination, so that every view's target
+    at the last step of a truncated episode is its reward alone (no bootstrap). Right for a learner that sees the
+    absolute time step (the limit is then part of its MDP); the views' default bootstraps there (DECISIONS D10).
+    The segment table is kept: a macro-action cut by the time limit still gives no macro transition, one that ends
+    on the last step gives a terminal one."""
+    return slot.replace(terminated=jnp.logical_or(slot.terminated, slot.truncated))
 
 
 # ----------------------------------------------------------------------------------------
