@@ -48,7 +48,7 @@ class ToMacVFSettings:
 
     rnn_size: int = 32  # GRU width (D2)
     fc_size: int = 64
-    n_step: int = 1  # micro-TD n (D11)
+    n_step: int = 1  # micro-TD n (D11); 5 stopped the value divergence that idles Box Pushing 12x12 seeds (README §)
     macro_loss_weight: float = 1.0  # λ (D8)
     # D8: False = one step on L = micro + λ·macro; True = the paper's literal pseudocode, a micro-TD step then an
     # additional λ·macro-TD step (on the updated parameters) when the batch holds a completed macro-action
@@ -68,7 +68,8 @@ class ToMacVFSettings:
     overestimate_anneal_episodes: int = 0
     # D10: True = targets bootstrap at a time-limit truncation (the time limit is not part of the MDP; MacroMARL);
     # False = the last step of a truncated episode is terminal (``views.time_limit_as_termination``), which anchors
-    # every value at the horizon — right when the agents see the absolute time step (``use_time_pe``)
+    # every value at the horizon — right when the agents see the absolute time step (``use_time_pe``); it did not
+    # stop the diverging Box Pushing 12x12 seed (README §)
     bootstrap_time_limit: bool = True
     buffer: str = "mac_sjert"  # D16 ablation: "mac_jert"
     mixer: str = "qmix"  # D19: "qmix", "vdn", "qplex" (ToMacVF_QPLEX), "qtran" (ToMacVF_Qtran)
