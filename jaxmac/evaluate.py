@@ -52,7 +52,7 @@ def greedy_episode_frames(out_dir: str, seed_index: int = 0, key: int = 0) -> tu
     length = int(stats["length"])
     reset_state, _ = env.reset(jax.random.key(key))
     frames = [f"t=0 (reset)\n{env.render(reset_state)}"]
-    rewards = np.asarray(traj.reward)
+    rewards, names = np.asarray(traj.reward), env.spec.action_names
     if algo.values is not None:
         chosen_on = decision_timesteps(reset_ts, traj)
         q = values_along(algo, params, chosen_on)
@@ -61,7 +61,6 @@ def greedy_episode_frames(out_dir: str, seed_index: int = 0, key: int = 0) -> tu
         frame_state = jax.tree_util.tree_map(lambda x, t=t: x[t], states)
         frame = f"after step {t} (reward {rewards[t]:+.1f})\n{env.render(frame_state)}"
         if algo.values is not None:
-            names = env.spec.action_names
             frame += "".join(f"\nagent {i} chose at step {t} from {values_line(names[i], q[t, i], avail[t, i])}"
                              for i in range(env.spec.num_agents) if free[t, i])
         frames.append(frame)
