@@ -23,7 +23,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from envs_jax.core import CoreStep, EnvSpec, MacroEnv
+from envs_jax.core import CoreStep, EnvSpec, MacroEnv, RewardBounds
 from envs_jax.registry import apply_overrides, register
 
 # Macro-action ids.
@@ -127,6 +127,16 @@ class BoxPushing(MacroEnv[BoxPushingCore]):
             discount=config.discount,
             agent_names=("agent_0", "agent_1"),
         )
+
+    def reward_bounds(self) -> RewardBounds:
+        """A push costs each agent at most one wall and three box bumps (``_push``); the episode ends on the step
+        the first box reaches the goal row, so each box pays at most once."""
+        cfg = self.config
+        penalties = 2 * 4  # two agents, a wall and three boxes each
+        boxes = (cfg.small_box_reward, cfg.small_box_reward, cfg.big_box_reward)
+        step_min = cfg.step_cost + penalties * min(0.0, cfg.penalty) + sum(min(0.0, r) for r in boxes)
+        step_max = max(0.0, cfg.step_cost) + penalties * max(0.0, cfg.penalty)
+        return RewardBounds(step_min, cfg.horizon * step_max + sum(max(0.0, r) for r in boxes))
 
     # --- geometry helpers ------------------------------------------------------------
     def _box_cells(self, box_row: chex.Array) -> chex.Array:

@@ -88,6 +88,26 @@ class TimeStep:
         return jnp.logical_or(self.terminated, self.truncated)
 
 
+@dataclasses.dataclass(frozen=True)
+class RewardBounds:
+    """What any episode of an env can pay, from its reward weights (not from experience).
+
+    ``step_min``: the lowest team reward of one primitive step; ``episode_max``: the most positive reward one
+    episode can collect in total. Together they bound every value: ``value_bounds``."""
+
+    step_min: float
+    episode_max: float
+
+
+def value_bounds(bounds: RewardBounds, discount: float, horizon: int) -> tuple[float, float]:
+    """(low, high) bounds on the discounted return from any state of an episode of at most ``horizon`` steps:
+    at worst every remaining step pays ``step_min`` (low = min(0, step_min) · Σ_{t<H} γ^t); at best the episode
+    still collects all its positive reward undiscounted (high = episode_max). A value estimate outside them is
+    wrong whatever the policy."""
+    steps = horizon if discount == 1.0 else (1.0 - discount ** horizon) / (1.0 - discount)
+    return min(0.0, bounds.step_min) * steps, max(0.0, bounds.episode_max)
+
+
 @struct.dataclass
 class EnvState(Generic[Core]):
     """Full dynamic state: domain core plus the macro-action bookkeeping."""
@@ -143,6 +163,10 @@ class MacroEnv(abc.ABC, Generic[Core]):
     def _core_reset_obs(self, core: Core) -> chex.Array:
         """Observation emitted by ``reset``; domains with a fixed reset observation override."""
         return self._core_obs(core)
+
+    def reward_bounds(self) -> RewardBounds:
+        """Bounds on what a step and an episode can pay (``RewardBounds``), from the configured reward weights."""
+        raise NotImplementedError(f"{type(self).__name__} declares no reward bounds")
 
     def render(self, state: EnvState) -> str:
         """Text picture of a (single, unbatched) state."""

@@ -183,7 +183,7 @@ def questions_section(results, labels: dict[str, str]) -> list[str]:
              "protocol.", ""]
     lines += ["**1. Does ToMacVF beat the asynchronous baselines?**", ""]
     baselines = [m.name for m in EXPERIMENTS["bp"][0] if not m.name.startswith("tomacvf")]
-    for variant in ("tomacvf", "tomacvf-tuned"):
+    for variant in ("tomacvf", "tomacvf-tuned", "tomacvf-paper"):
         won, tied, below, scenarios = [], [], [], 0
         for experiment in ("bp", "warehouse", "overcooked"):
             methods, exp_scenarios = EXPERIMENTS[experiment]

@@ -52,7 +52,7 @@ def cmd_rollout(args) -> int:
 
 
 def cmd_train(args) -> int:
-    from jaxmac.config import preset_config, scenario_config
+    from jaxmac.config import parse_assignments, preset_config, scenario_config
     from jaxmac.run import default_out_dir, enable_compilation_cache, finish_run, resume_run, train_run, use_host_devices
     from jaxmac.workers import is_worker_run, resume_workers, train_workers
 
@@ -65,7 +65,7 @@ def cmd_train(args) -> int:
     if args.finish:
         if args.resume or any(v is not None for v in (args.scenario, args.seeds, args.preset, args.workers,
                                                        args.algorithm, args.episodes, args.out)) \
-                or args.set or args.tiny:
+                or args.set or args.tiny or args.paper:
             raise ValueError("--finish ends a run as it stands and takes no other option than --devices")
         if is_worker_run(args.finish):
             raise ValueError(f"--finish {args.finish}: a run of several worker processes cannot be finished early "
@@ -79,7 +79,7 @@ def cmd_train(args) -> int:
         diverged = os.path.exists(os.path.join(args.resume, "diverged.json"))
         ignored = [flag for flag, given in (("--scenario", args.scenario is not None), ("--seeds", args.seeds is not None),
                                             ("--preset", args.preset is not None),
-                                            ("--set", bool(args.set) and not diverged), ("--tiny", args.tiny),
+                                            ("--set", bool(args.set) and not diverged), ("--tiny", args.tiny), ("--paper", args.paper),
                                             ("--out", args.out is not None), ("--workers", args.workers is not None),
                                             ("--algorithm", args.algorithm is not None)) if given]
         if ignored:
@@ -94,7 +94,8 @@ def cmd_train(args) -> int:
     else:
         if args.preset is not None:
             clash = [flag for flag, given in (("--scenario", args.scenario is not None), ("--tiny", args.tiny),
-                                              ("--algorithm", args.algorithm is not None)) if given]
+                                              ("--algorithm", args.algorithm is not None), ("--paper", args.paper))
+                     if given]
             if clash:
                 raise ValueError(f"--preset {args.preset} fixes the scenario, learner and sizes; {', '.join(clash)} "
                                  "cannot be combined with it (--seeds, --episodes and --set can)")
@@ -102,11 +103,16 @@ def cmd_train(args) -> int:
             print(f"preset {args.preset}: {preset.about}")
             if args.seeds is None:
                 args.seeds = (0, preset.seeds)
+            if args.episodes is not None:
+                config = config.override(episodes=args.episodes)
+            config = config.override_strings(args.set)
         else:
-            config = scenario_config(args.scenario or "boxpushing-6x6", args.algorithm or "tomacvf", tiny=args.tiny)
-        if args.episodes is not None:
-            config = config.override(episodes=args.episodes)
-        config = config.override_strings(args.set)
+            algorithm = args.algorithm or "tomacvf"
+            overrides = parse_assignments(args.set, algorithm)
+            if args.episodes is not None:
+                overrides["episodes"] = args.episodes
+            config = scenario_config(args.scenario or "boxpushing-6x6", algorithm, tiny=args.tiny, paper=args.paper,
+                                     overrides=overrides)
         out = args.out or default_out_dir(config)
         offset, seeds = (0, 1) if args.seeds is None else args.seeds
         workers = 1 if args.workers is None else args.workers
@@ -210,6 +216,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--episodes", type=int, default=None, help="training episodes per seed (default: the paper's)")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="override any config value")
     p.add_argument("--tiny", action="store_true", help="tiny networks and budgets (smoke runs)")
+    p.add_argument("--paper", action="store_true",
+                   help="the publication's settings where jaxmac's defaults differ (ToMacVF on Overcooked and "
+                        "Warehouse: docs/tomacvf-settings.md says what and why)")
     p.add_argument("--out", default=None, help="run folder (default: runs/SCENARIO-ALGO-TIME)")
     p.add_argument("--finish", default=None, metavar="RUN_DIR",
                    help="end a run where its newest checkpoint stands (final evaluation, summary, plot) without "

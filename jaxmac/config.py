@@ -12,6 +12,7 @@ validated copy; a name of another algorithm's block is refused, naming that algo
 from __future__ import annotations
 
 import dataclasses
+import math
 import typing
 from typing import Any
 
@@ -38,7 +39,8 @@ class TrainConfig:
     start_train_episodes: int = 0  # no gradient step before this many episodes (and a batch) are stored
     lr: float = 1e-3
     grad_clip: float = 10.0  # global-norm clip (D8); 0 = none (the originals clip nothing)
-    target_update_episodes: int = 32  # hard target copy period in episodes (D13)
+    # hard target copy period in episodes (D13), more than one round (num_envs); 0 = a copy after every round
+    target_update_episodes: int = 32
     target_update_steps: int = 0  # > 0: the period counts env steps instead (the originals' target_update_freq)
     target_polyak: float = 0.0  # > 0: Polyak averaging by this rate after every gradient step instead of copies
     eps_start: float = 1.0
@@ -60,6 +62,11 @@ class TrainConfig:
     # the batch's real entries: the same losses, less padding (jaxmac.buckets; the on-policy learners); 1 = always
     # the full length, one compilation
     length_buckets: int = 1
+    # stop a run (keeping its last good checkpoint) when a value learner's mean value estimate leaves the env's
+    # bounds on any discounted return (``jaxmac.run.value_bounds_of``) by more than divergence_margin of the bound;
+    # rounds outside are flagged in metrics.csv (value_out_of_bounds) either way
+    divergence_guard: bool = True
+    divergence_margin: float = 0.1
     algo: Any = None  # the algorithm's settings block; None = its defaults
 
     def __post_init__(self):
@@ -75,11 +82,12 @@ class TrainConfig:
         if self.scenario not in SCENARIOS:
             raise ValueError(f"scenario={self.scenario!r} is not valid; choices: {list(SCENARIOS)}")
         positive = ("episodes", "num_envs", "updates_per_round", "batch_size", "buffer_episodes",
-                    "target_update_episodes", "eval_every_episodes", "eval_episodes")
+                    "eval_every_episodes", "eval_episodes")
         for name in positive:
             if getattr(self, name) < 1:
                 raise ValueError(f"{name}={getattr(self, name)!r} must be >= 1")
-        for name in ("train_every_steps", "start_train_episodes", "target_update_steps", "eps_decay_episodes",
+        for name in ("train_every_steps", "start_train_episodes", "target_update_episodes", "target_update_steps",
+                     "eps_decay_episodes",
                      "eps_decay_start", "horizon"):
             if getattr(self, name) < 0:
                 raise ValueError(f"{name}={getattr(self, name)!r} must be >= 0")
@@ -100,8 +108,28 @@ class TrainConfig:
             raise ValueError(f"buffer_episodes={self.buffer_episodes} must be >= batch_size={self.batch_size}")
         if self.grad_clip < 0:
             raise ValueError(f"grad_clip={self.grad_clip!r} must be >= 0 (0 = no clipping)")
+        if not (self.divergence_margin >= 0.0 and math.isfinite(self.divergence_margin)):
+            raise ValueError(f"divergence_margin={self.divergence_margin!r} must be a finite number >= 0 (a fraction "
+                             f"of each value bound)")
         if not 0.0 <= self.target_polyak < 1.0:
             raise ValueError(f"target_polyak={self.target_polyak!r} must be in [0, 1) (0 = hard copies)")
+        self._check_target_period()
+
+    def _check_target_period(self) -> None:
+        """A hard copy every ``target_update_episodes`` episodes lands after a round's gradient steps; a period of
+        at most one round (``num_envs`` episodes) copies after every round, so the target lags the online network by
+        less than one round — with one step per round not at all: no target network. Refused, because that is
+        never what a period asks for; 0 asks for it explicitly (a copy after every round)."""
+        if self.target_polyak or self.target_update_steps or self.target_update_episodes == 0:
+            return
+        if self.target_update_episodes <= self.num_envs:
+            raise ValueError(
+                f"target_update_episodes={self.target_update_episodes} <= num_envs={self.num_envs}: the target would "
+                f"be copied after every round of {self.num_envs} episodes, i.e. after every "
+                f"{'gradient step' if self.updates_per_round == 1 and not self.train_every_steps else 'round'}, and "
+                f"would never lag the online network by a round. Use a period of several rounds (e.g. "
+                f"target_update_episodes={4 * self.num_envs}), or target_update_episodes=0 to train without a "
+                f"target network on purpose (a copy after every round)")
 
     # --- overrides ----------------------------------------------------------------------
     def override(self, **values: Any) -> "TrainConfig":
@@ -130,22 +158,7 @@ class TrainConfig:
 
     def override_strings(self, assignments: list[str]) -> "TrainConfig":
         """Apply ``key=value`` strings (the CLI's ``--set``), parsing values by field type."""
-        values: dict[str, Any] = {}
-        for item in assignments:
-            key, sep, raw = item.partition("=")
-            key = key.strip()
-            if not sep:
-                raise ValueError(f"--set expects key=value, got {item!r}")
-            values[key] = raw.strip()
-        algorithm = values.get("algorithm", self.algorithm)
-        hints = {**_shared_hints(), **typing.get_type_hints(REGISTRY[algorithm].settings)} if algorithm in REGISTRY \
-            else _shared_hints()
-        parsed = {}
-        for key, raw in values.items():
-            if key not in hints:
-                raise ValueError(_unknown_key_message(key, algorithm))
-            parsed[key] = _parse(key, raw, hints[key])
-        return self.override(**parsed)
+        return self.override(**parse_assignments(assignments, self.algorithm))
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready: shared fields, with the block as a nested dict under ``algo``."""
@@ -160,7 +173,8 @@ class TrainConfig:
 
     @classmethod
     def from_dict(cls, values: dict[str, Any]) -> "TrainConfig":
-        """Inverse of ``to_dict``; also reads the flat layout of run folders written before the blocks existed."""
+        """Inverse of ``to_dict``; also reads run folders of older versions: the flat layout written before the blocks
+        existed, and hard-copy periods of at most one round (read as 0, which runs the same)."""
         values = dict(values)
         algorithm = values.get("algorithm", "tomacvf")
         settings_cls = REGISTRY[algorithm].settings
@@ -170,11 +184,37 @@ class TrainConfig:
             block = {k: values.pop(k) for k in list(values) if k in names}
         block = {k: tuple(v) if isinstance(v, list) else v for k, v in block.items()}
         names = {f.name for f in dataclasses.fields(settings_cls)}
+        if (not values.get("target_polyak") and not values.get("target_update_steps")
+                and 0 < values.get("target_update_episodes", 1) <= values.get("num_envs", 0)):
+            # written before periods of at most one round were refused: they copied after every round, which a
+            # period of 0 now says (the same run)
+            values["target_update_episodes"] = 0
         unknown = sorted(set(block) - names)
         if unknown:
             raise ValueError(f"settings {unknown} are not fields of {algorithm}'s settings (valid: {sorted(names)}); "
                              "the run was written by another version of jaxmac")
         return cls(**values, algo=settings_cls(**block))
+
+
+def parse_assignments(assignments: list[str], algorithm: str) -> dict[str, Any]:
+    """``key=value`` strings (the CLI's ``--set``) as typed values of the shared fields and ``algorithm``'s block
+    (``algorithm=`` among them switches the block); unknown keys and unparsable values are refused."""
+    values: dict[str, Any] = {}
+    for item in assignments:
+        key, sep, raw = item.partition("=")
+        key = key.strip()
+        if not sep:
+            raise ValueError(f"--set expects key=value, got {item!r}")
+        values[key] = raw.strip()
+    algorithm = values.get("algorithm", algorithm)
+    hints = {**_shared_hints(), **typing.get_type_hints(REGISTRY[algorithm].settings)} if algorithm in REGISTRY \
+        else _shared_hints()
+    parsed = {}
+    for key, raw in values.items():
+        if key not in hints:
+            raise ValueError(_unknown_key_message(key, algorithm))
+        parsed[key] = _parse(key, raw, hints[key])
+    return parsed
 
 
 def _shared_hints() -> dict[str, Any]:
@@ -238,16 +278,22 @@ def _parse(key: str, raw: str, kind: type) -> Any:
 
 # --- scenarios ------------------------------------------------------------------------------------------
 
-def scenario_config(scenario: str, algorithm: str = "tomacvf", tiny: bool = False) -> TrainConfig:
-    """``algorithm``'s configuration of ``scenario`` from its original scripts (optionally shrunk to test size)."""
+def scenario_config(scenario: str, algorithm: str = "tomacvf", tiny: bool = False, paper: bool = False,
+                    overrides: dict[str, Any] | None = None) -> TrainConfig:
+    """``algorithm``'s configuration of ``scenario`` (optionally shrunk to test size): jaxmac's defaults, which are
+    the original scripts' values except where a learner records changes that make it learn (ToMacVF); ``paper``:
+    the publication's own values. ``overrides`` are applied with the table's values in one validation (a setting
+    that is only valid together with an override, such as the paper's Overcooked target period, can be run)."""
     if scenario not in SCENARIOS:
         raise ValueError(f"unknown scenario {scenario!r}; valid scenarios: {list(SCENARIOS)}")
     if algorithm not in REGISTRY:
         raise ValueError(f"unknown algorithm {algorithm!r}; valid: {list(REGISTRY)}")
     entry = REGISTRY[algorithm]
-    values = dict(entry.scenario_values.get(scenario, {}))
+    table = entry.paper_values if paper and entry.paper_values is not None else entry.scenario_values
+    values = dict(table.get(scenario, {}))
     if tiny:
         values.update(TINY, **entry.tiny_values)
+    values.update(overrides or {})
     return TrainConfig(scenario=scenario, algorithm=algorithm).override(**values)
 
 

@@ -35,6 +35,10 @@ METRIC_COLUMNS = ("seed", "round", "episodes", "epsilon", "train_return", "train
                   "eval_disc_return", "eval_return", "loss")
 # Metrics that must stay finite in every round with a gradient step (and param_norm in every round).
 WATCHED = ("loss", "grad_norm", "param_norm")
+# The value learners' mean value estimates, each a (mixed or per-agent) estimate of a discounted team return: they
+# must stay inside the env's value bounds (``value_bounds``); the divergence guard watches them.
+VALUE_METRICS = ("q_tot_mean", "cen_q_mean", "dec_q_mean")
+OUT_OF_BOUNDS_COLUMN = "value_out_of_bounds"
 
 # Discounted optimal returns (SPEC §13 / BASELINES §3.2) drawn on the curves.
 OPTIMAL_DISC_RETURN = {
@@ -173,6 +177,44 @@ def check_finite(metrics: dict[str, np.ndarray], seed_ids: list[int], first_roun
                 if (k == "param_norm" or stepped[s, r]) and not np.isfinite(value):
                     return f"seed {seed_ids[s]}, round {first_round + r}: {k} = {value}"
     return None
+
+
+def value_bounds_of(config: TrainConfig, env) -> tuple[float, float]:
+    """The interval the guard holds value estimates to: the env's bounds on a discounted return from any state
+    (``envs_jax.core.value_bounds``, with the learning discount) widened by ``divergence_margin`` of each bound's
+    own size."""
+    from envs_jax.core import value_bounds
+
+    low, high = value_bounds(env.reward_bounds(), env.spec.discount, env.spec.horizon)
+    margin = config.divergence_margin
+    return low - margin * abs(low), high + margin * abs(high)
+
+
+def flag_out_of_bounds(metrics: dict[str, np.ndarray], bounds: tuple[float, float]) -> np.ndarray | None:
+    """f32[seeds, rounds]: 1 where a watched value metric (``VALUE_METRICS``) left ``bounds`` in that round, else 0
+    (None if the learner reports none of them). NaN values (rounds without a gradient step) are not flagged."""
+    names = [k for k in VALUE_METRICS if k in metrics]
+    if not names:
+        return None
+    low, high = bounds
+    values = np.stack([np.asarray(metrics[k], np.float64) for k in names])
+    with np.errstate(invalid="ignore"):
+        out = ((values < low) | (values > high)).any(0)
+    return out.astype(np.float32)
+
+
+def out_of_bounds_message(metrics: dict[str, np.ndarray], seed_ids: list[int], first_round: int,
+                          bounds: tuple[float, float]) -> str | None:
+    """The first seed and round (in round order) whose watched value metric left ``bounds``, or None."""
+    flags = metrics.get(OUT_OF_BOUNDS_COLUMN)
+    if flags is None or not np.any(flags):
+        return None
+    seed, rnd = min(zip(*np.nonzero(flags)), key=lambda sr: (sr[1], sr[0]))
+    name, value = next((k, float(metrics[k][seed, rnd])) for k in VALUE_METRICS
+                       if k in metrics and not bounds[0] <= float(metrics[k][seed, rnd]) <= bounds[1])
+    return (f"seed {seed_ids[seed]}, round {first_round + rnd} (episode {int(metrics['episodes'][seed, rnd])}): "
+            f"{name} = {value:.6g} is outside the value bounds [{bounds[0]:.6g}, {bounds[1]:.6g}] that every return "
+            f"of this env lies in (widened by divergence_margin)")
 
 
 def _truncate_metrics(path: str, rounds_done: int) -> None:
@@ -378,21 +420,33 @@ def _loop(programs, state, chunk, out_dir, meta, checkpoint_seconds, progress, s
     last_ckpt = time.perf_counter()
     last_eval = float("nan")
     done_here = 0
+    bounds = value_bounds_of(config, trainer.env)
     while chunk < total:
         state, metrics = programs.chunk(state)
-        metrics = jax.device_get(metrics)
-        _write_metrics(metrics_path, metrics, seed_ids, chunk * trainer.rounds_per_chunk)
-        problem = check_finite(metrics, seed_ids, chunk * trainer.rounds_per_chunk)
-        if problem:  # never checkpoint a diverged state: the newest checkpoint stays the last good one
+        metrics = dict(jax.device_get(metrics))
+        flags = flag_out_of_bounds(metrics, bounds)
+        if flags is not None:
+            metrics[OUT_OF_BOUNDS_COLUMN] = flags
+        first_round = chunk * trainer.rounds_per_chunk
+        _write_metrics(metrics_path, metrics, seed_ids, first_round)
+        problem = check_finite(metrics, seed_ids, first_round)
+        outside = out_of_bounds_message(metrics, seed_ids, first_round, bounds)
+        if outside and not config.divergence_guard:
+            bar.set_postfix_str(f"value out of bounds: {outside.split(' is outside')[0]}")
+        if problem or (outside and config.divergence_guard):
+            # never checkpoint a diverged state: the newest checkpoint stays the last good one
             bar.close()
-            last_good = mngr.latest_step() or 0
+            last_good = mngr.latest_step()
             mngr.close()
-            write_json_atomic(os.path.join(out_dir, "diverged.json"), {"problem": problem, "chunk": chunk,
-                                                                      "last_good_checkpoint": last_good})
-            raise RuntimeError(
-                f"training diverged at {problem}; stopped. {out_dir} keeps its last good checkpoint (chunk "
-                f"{last_good}): continue from it with other settings, e.g. "
-                f"jaxmac train --resume {out_dir} --set lr=...")
+            write_json_atomic(os.path.join(out_dir, "diverged.json"), {
+                "problem": problem or outside, "kind": "non-finite" if problem else "value out of bounds",
+                "chunk": chunk, "last_good_checkpoint": last_good})
+            kept = (f"{out_dir} keeps its last good checkpoint (chunk {last_good})" if last_good is not None else
+                    f"{out_dir} has no checkpoint from before it (resuming starts the run again)")
+            what = f"training diverged at {problem}" if problem else (
+                f"the value estimate diverged at {outside} (set divergence_guard=false to train on regardless)")
+            raise RuntimeError(f"{what}; stopped. {kept}: continue with other settings, e.g. "
+                               f"jaxmac train --resume {out_dir} --set lr=...")
         chunk += 1
         done_here += 1
         evals = metrics["eval_disc_return"]

@@ -217,7 +217,7 @@ def make_train(
                 period, before, after = config.target_update_steps, state.env_steps, env_steps
             else:
                 period, before, after = config.target_update_episodes, state.episodes, episodes
-            copy_target = after // period > before // period
+            copy_target = after // period > before // period if period else True  # 0: after every round
             target_params = jax.tree_util.tree_map(lambda p, t: jnp.where(copy_target, p, t), params, target_params)
         run_eval = episodes // config.eval_every_episodes > state.episodes // config.eval_every_episodes
         run_eval = any_seed(run_eval)  # the same for every seed: unbatched

@@ -58,12 +58,12 @@ def test_aggregates_leave_out_the_methods_a_protocol_does_not_run(tmp_path):
     # cpu leaves the value baselines out on Overcooked: the aggregates run over the five methods that ran everywhere
     sweep = tmp_path / "cpu"
     for i, s in enumerate(("overcooked-A", "overcooked-B", "overcooked-C")):
-        for j, m in enumerate(("tomacvf", "tomacvf-tuned", "mac_cac", "mac_iaicc", "mac_niacc")):
+        for j, m in enumerate(("tomacvf", "tomacvf-paper", "mac_cac", "mac_iaicc", "mac_niacc")):
             _fake_run(sweep / s / m / "seeds0-2", 0, [10.0 * j + i, 10.0 * j + i + 5])
     overcooked = pathlib.Path(write_page(str(sweep), str(tmp_path / "out"), ["overcooked"])).read_text()
     aggregates = overcooked.split("## overcooked")[1].split("Aggregates")[1]
     assert "without Mac-Dec-MADDRQN, Mac-Cen-DDRQN, AVF, not run on every scenario under this protocol" in aggregates
-    for label in ("ToMacVF", "ToMacVF (tuned)", "Mac-CAC", "Mac-IAICC", "Mac-NIACC"):
+    for label in ("ToMacVF", "ToMacVF (paper's settings)", "Mac-CAC", "Mac-IAICC", "Mac-NIACC"):
         assert f"\n| {label} | " in aggregates
     assert "| AVF |" not in aggregates
     # one runnable cell missing: no aggregates yet

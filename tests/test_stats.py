@@ -126,8 +126,8 @@ def test_load_sweep_merges_seed_ranges_and_skips_unfinished(tmp_path):
 
 def test_warehouse_is_compared_on_undiscounted_returns_whatever_gamma_a_run_learned_with(tmp_path):
     # Warehouse's returns (and ceilings) are undiscounted: a run learning with γ 0.99 reports discounted ones too
-    _fake_run(tmp_path / "warehouse-A" / "tomacvf-tuned" / "seeds0-2", 0, [300.0, 320.0], undiscounted_extra=200.0)
+    _fake_run(tmp_path / "warehouse-A" / "tomacvf" / "seeds0-2", 0, [300.0, 320.0], undiscounted_extra=200.0)
     _fake_run(tmp_path / "overcooked-A" / "tomacvf" / "seeds0-2", 0, [30.0, 50.0], undiscounted_extra=7.0)
     results = load_sweep(str(tmp_path))
-    np.testing.assert_allclose(results[("warehouse-A", "tomacvf-tuned")].finals, [500.0, 520.0])
+    np.testing.assert_allclose(results[("warehouse-A", "tomacvf")].finals, [500.0, 520.0])
     np.testing.assert_allclose(results[("overcooked-A", "tomacvf")].finals, [30.0, 50.0])

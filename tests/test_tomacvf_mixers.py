@@ -208,7 +208,7 @@ def test_sequential_updates_step_on_micro_then_on_macro_at_the_updated_parameter
 @pytest.mark.parametrize("mixer", ["qplex", "qtran"])
 def test_tomacvf_trains_end_to_end_with_qplex_and_qtran(mixer):
     config = bp_config(mixer=mixer, episodes=24, num_envs=8, batch_size=8, buffer_episodes=16,
-                       eval_every_episodes=8, eval_episodes=2, target_update_episodes=8, eps_decay_episodes=8)
+                       eval_every_episodes=8, eval_episodes=2, target_update_episodes=16, eps_decay_episodes=8)
     env = make_env(config)
     trainer = make_train(config, env, make_tomacvf(config, env), rounds_per_chunk=3)
     state = jax.jit(trainer.init)(jax.random.key(1))

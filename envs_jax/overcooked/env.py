@@ -20,7 +20,7 @@ import dataclasses
 import chex
 import jax.numpy as jnp
 
-from envs_jax.core import CoreStep, EnvSpec, EnvState, MacroEnv
+from envs_jax.core import CoreStep, EnvSpec, EnvState, MacroEnv, RewardBounds
 from envs_jax.overcooked import controllers, layouts, physics, plan_table, world
 from envs_jax.overcooked.world import OvercookedState
 
@@ -88,6 +88,16 @@ class Overcooked(MacroEnv[OvercookedState]):
         nxt = nxt.replace(belief=world.update_beliefs(nxt, radius))
         done = done | controllers.post_step_done(self.layout, nxt, actions)
         return CoreStep(core=nxt, mac=actions, mac_done=done, reward=self.reward(ev), terminated=ev.correct > 0)
+
+    def reward_bounds(self) -> RewardBounds:
+        """Each food is chopped through once, the first correct salad ends the episode, and each agent can bring
+        at most one thing to the delivery counter per step."""
+        cfg, n = self.config, self.spec.num_agents
+        step_min = (cfg.reward_step + n * min(0.0, cfg.reward_wrong) + layouts.N_FOODS * min(0.0, cfg.reward_chop)
+                    + min(0.0, cfg.reward_correct))
+        per_step = max(0.0, cfg.reward_step) + n * max(0.0, cfg.reward_wrong)
+        once = layouts.N_FOODS * max(0.0, cfg.reward_chop) + max(0.0, cfg.reward_correct)
+        return RewardBounds(step_min, cfg.horizon * per_step + once)
 
     def reward(self, ev: physics.Events) -> chex.Array:
         """Team reward (f32[]) of one step's events, with the configured weights (SPEC §10)."""

@@ -29,7 +29,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from envs_jax.core import CoreStep, EnvSpec, MacroEnv
+from envs_jax.core import CoreStep, EnvSpec, MacroEnv, RewardBounds
 from envs_jax.warehouse import variants as V
 from envs_jax.warehouse.motion import build_motion_graph, continuous_move
 
@@ -194,6 +194,17 @@ class WarehouseEnv(MacroEnv[WarehouseCore]):
             reward=(V.STEP_REWARD + rb_reward + f_reward).astype(jnp.float32),
             terminated=terminated,
         )
+
+    def reward_bounds(self) -> RewardBounds:
+        """Every handed-over tool was found by a search first (at most ``n_each_obj`` per tool type) and each human
+        takes at most one per work phase; per step, each robot hands over at most once and F fails at most one
+        pass."""
+        cfg = self.config
+        handover = V.HANDOVER_REWARD + np.array([0.0, cfg.delay_penalty])  # on time, late
+        handovers = min(self.n_humans * V.N_PHASES, V.N_TOOLS * cfg.n_each_obj)
+        step_min = V.STEP_REWARD + min(0.0, cfg.drop_penalty) + self.n_robots * min(0.0, float(handover.min()))
+        step_max = max(0.0, V.STEP_REWARD) + max(0.0, cfg.drop_penalty)
+        return RewardBounds(step_min, cfg.horizon * step_max + handovers * max(0.0, float(handover.max())))
 
     def _robots_step(self, core: WarehouseCore, k: chex.Array, eps: chex.Array):
         """§5.1 for the robots in index order (a later robot sees the tool an earlier one

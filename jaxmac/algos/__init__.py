@@ -21,7 +21,10 @@ class Entry:
     scenario_values: dict[str, dict[str, Any]]  # original-script values per scenario (shared and block fields)
     tiny_values: dict[str, Any]  # block values for tests and smoke runs
     summary: str
+    # the publication's own values where jaxmac's defaults differ from them (``jaxmac train --paper``); None = the
+    # defaults are the publication's
     length_buckets: bool = False  # its update reads TrainConfig.length_buckets (runs on the batch's real length)
+    paper_values: dict[str, dict[str, Any]] | None = None
 
 
 _TINY_DRQN = dict(mlp_sizes=(8, 8), rnn_size=8, start_train_episodes=0, eps_decay_start=0, train_every_steps=20,
@@ -37,7 +40,7 @@ REGISTRY: dict[str, Entry] = {
         dict(rnn_size=8, fc_size=16, mixer_embed=8, attn_dim=8, time_pe_dim=4, progress_pe_dim=4, length_buckets=1,
              packing=False),
         "ToMacVF: temporal agent nets, ATPG-parameterised QMIX, micro- and macro-TD on Mac-SJERT",
-        length_buckets=True),
+        length_buckets=True, paper_values=s.TOMACVF_PAPER),
     "maccen_ddrqn": Entry(
         s.MacCenDDRQNSettings, "jaxmac.algos.maccen_ddrqn:make_maccen_ddrqn", s.MACCEN,
         _TINY_DRQN, "Mac-Cen-DDRQN: centralised recurrent joint Q on Mac-JERT, conditional double-Q"),
