@@ -37,16 +37,14 @@ def method_colours() -> dict[str, str]:
 
 def experiment_figure(results, experiment: str, out_base: str, window: int = 10) -> bool:
     """One panel per scenario of ``experiment``; False when no cell of it has finished."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure  # its own Agg canvas: never touches pyplot's backend or figure list
 
     methods, scenarios = EXPERIMENTS[experiment]
     if not any((s, m.name) in results for s in scenarios for m in methods):
         return False
     colours = method_colours()
-    fig, axes = plt.subplots(1, len(scenarios), figsize=(4.2 * len(scenarios), 3.6), dpi=110, squeeze=False)
+    fig = Figure(figsize=(4.2 * len(scenarios), 3.6), dpi=110)
+    axes = fig.subplots(1, len(scenarios), squeeze=False)
     for ax, scenario in zip(axes[0], scenarios):
         for method in methods:
             cell = results.get((scenario, method.name))
@@ -68,7 +66,6 @@ def experiment_figure(results, experiment: str, out_base: str, window: int = 10)
                frameon=False)
     fig.tight_layout(rect=(0, 0.1, 1, 1))
     save_figure(fig, out_base + ".png", pdf=True)
-    plt.close(fig)
     return True
 
 

@@ -70,17 +70,15 @@ def greedy_episode_frames(out_dir: str, seed_index: int = 0, key: int = 0) -> tu
 
 def save_strip(frames: list[str], png_path: str, max_panels: int = 8) -> None:
     """Evenly spaced frames (first and last included) side by side in monospace text."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure  # its own Agg canvas: never touches pyplot's backend or figure list
 
     idx = np.unique(np.linspace(0, len(frames) - 1, min(max_panels, len(frames))).round().astype(int))
     lines = max(f.count("\n") + 1 for f in frames)
     width = max(len(line) for f in frames for line in f.splitlines())
     cols = min(4, len(idx))
     rows = -(-len(idx) // cols)
-    fig, axes = plt.subplots(rows, cols, figsize=(0.075 * width * cols + 0.5, 0.16 * lines * rows + 0.5), dpi=110)
+    fig = Figure(figsize=(0.075 * width * cols + 0.5, 0.16 * lines * rows + 0.5), dpi=110)
+    axes = fig.subplots(rows, cols)
     axes = np.atleast_1d(axes).ravel()
     for ax in axes:
         ax.axis("off")
@@ -88,7 +86,6 @@ def save_strip(frames: list[str], png_path: str, max_panels: int = 8) -> None:
         ax.text(0.0, 1.0, frames[i], family="monospace", fontsize=8, va="top", ha="left", transform=ax.transAxes)
     fig.tight_layout()
     fig.savefig(png_path)
-    plt.close(fig)
 
 
 def evaluate_run(out_dir: str, seed_index: int = 0) -> tuple[str, str, dict]:

@@ -53,14 +53,12 @@ def plot_curves(curves: list[tuple[str, np.ndarray, np.ndarray]], png_path: str,
     that a short run's last evaluations are not averaged with its first); ``pdf`` also writes a PDF. The
     evaluation return is greedy for the value learners and sampled from the policy for the actor-critics (as
     their originals evaluate)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure  # its own Agg canvas: never touches pyplot's backend or figure list
 
     points = max((len(episodes) for _, episodes, _ in curves), default=0)
     window = max(1, min(window, points // 10))
-    fig, ax = plt.subplots(figsize=(6.4, 4.0), dpi=120)
+    fig = Figure(figsize=(6.4, 4.0), dpi=120)
+    ax = fig.subplots()
     for label, episodes, values in curves:
         if not values.size:
             continue
@@ -79,7 +77,6 @@ def plot_curves(curves: list[tuple[str, np.ndarray, np.ndarray]], png_path: str,
     ax.legend(loc="lower right", fontsize=8)
     fig.tight_layout()
     save_figure(fig, png_path, pdf)
-    plt.close(fig)
 
 
 def save_figure(fig, png_path: str, pdf: bool = False) -> None:

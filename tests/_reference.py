@@ -1,9 +1,7 @@
-"""Where the golden traces of the original environments live.
+"""Where the golden traces of the original environments live: ``tests/data/traces/<domain>``.
 
-They are in ``shared/reference/<domain>/traces`` next to the checkout (``../shared`` from the
-repository root, as in CI). A checkout elsewhere points ``JAXMAC_SHARED`` at that ``shared``
-folder. Conformance is not optional, so a missing folder fails the trace tests (``require_traces``)
-instead of skipping them.
+They are part of the repository (format and provenance: ``docs/traces.md``). Conformance is not
+optional, so a missing trace fails the trace tests (``require_traces``) instead of skipping them.
 """
 
 from __future__ import annotations
@@ -11,21 +9,19 @@ from __future__ import annotations
 import glob
 import os
 
-SHARED_DIR = os.environ.get("JAXMAC_SHARED",
-                            os.path.join(os.path.dirname(__file__), "..", "..", "shared"))
+TRACES_DIR = os.path.join(os.path.dirname(os.path.abspath(__file__)), "data", "traces")
 
 
 def trace_dir(domain: str) -> str:
-    """``shared/reference/<domain>/traces`` (need not exist; see :func:`trace_files`)."""
-    return os.path.join(SHARED_DIR, "reference", domain, "traces")
+    """``tests/data/traces/<domain>``."""
+    return os.path.join(TRACES_DIR, domain)
 
 
 def trace_files(domain: str, pattern: str) -> list[str]:
-    """Sorted trace files of ``domain`` matching ``pattern``; [] when the folder is missing."""
+    """Sorted trace files of ``domain`` matching ``pattern`` ([] when none; see :func:`require_traces`)."""
     return sorted(glob.glob(os.path.join(trace_dir(domain), pattern)))
 
 
 def require_traces(domain: str, files: list[str]) -> None:
     """Fail the calling test, saying where it looked, when ``files`` (from :func:`trace_files`) is empty."""
-    assert files, (f"no {domain} traces in {os.path.abspath(trace_dir(domain))}: run the tests from a checkout "
-                   f"next to shared/, or set JAXMAC_SHARED to the shared folder")
+    assert files, f"no {domain} traces in {trace_dir(domain)} (they are committed under tests/data/traces)"

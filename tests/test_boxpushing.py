@@ -60,9 +60,9 @@ def scan_rollout(env, key, n_steps):
 # --- conformance --------------------------------------------------------------------------
 
 
-def test_shared_traces_cover_the_documented_set():
+def test_traces_cover_the_documented_set():
     require_traces("boxpushing", TRACES)
-    assert len(TRACES) == 10, f"expected the 10 shared Box Pushing trace files in {TRACE_DIR}"
+    assert len(TRACES) == 10, f"expected the 10 Box Pushing trace files in {TRACE_DIR}"
     reset_eps = synth_eps = 0
     for path in TRACES:
         with np.load(path) as d:
@@ -72,7 +72,7 @@ def test_shared_traces_cover_the_documented_set():
     assert (reset_eps, synth_eps) == (148, 240)
 
 
-def test_conformance_all_shared_traces(capsys):
+def test_conformance_all_traces(capsys):
     require_traces("boxpushing", TRACES)
     assert conformance_main(TRACES) == 0
     out = capsys.readouterr().out

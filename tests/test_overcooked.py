@@ -54,7 +54,7 @@ def scan_rollout(env, key, n_steps, policy=None):
 # --- conformance --------------------------------------------------------------------------------
 
 
-def test_shared_traces_are_the_documented_set():
+def test_traces_are_the_documented_set():
     require_traces("overcooked", TRACES)
     assert [os.path.basename(p) for p in TRACES] == ["overcooked_A.npz", "overcooked_B.npz", "overcooked_C.npz"]
     total = 0
@@ -65,7 +65,7 @@ def test_shared_traces_are_the_documented_set():
     assert total == 19977
 
 
-def test_conformance_all_shared_traces(capsys):
+def test_conformance_all_traces(capsys):
     require_traces("overcooked", TRACES)
     assert conformance_main(TRACES) == 0
     out = capsys.readouterr().out

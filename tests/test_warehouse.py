@@ -82,9 +82,9 @@ def traced_step(env_e):
 # --- conformance ------------------------------------------------------------------------------
 
 
-def test_shared_traces_cover_the_documented_set():
+def test_traces_cover_the_documented_set():
     require_traces("warehouse", TRACES)
-    assert len(TRACES) == 10, f"expected the 10 shared Warehouse trace files in {TRACE_DIR}"
+    assert len(TRACES) == 10, f"expected the 10 Warehouse trace files in {TRACE_DIR}"
     counts = {False: [0, 0], True: [0, 0]}  # noisy -> [episodes, transitions]
     for path in TRACES:
         with np.load(path) as d:
@@ -94,7 +94,7 @@ def test_shared_traces_cover_the_documented_set():
     assert counts == {False: [80, 16510], True: [20, 3649]}
 
 
-def test_conformance_all_shared_traces(capsys):
+def test_conformance_all_traces(capsys):
     require_traces("warehouse", TRACES)
     assert conformance_main(TRACES) == 0
     out = capsys.readouterr().out

@@ -13,7 +13,8 @@ def main(argv: list[str] | None = None) -> int:
         prog="python -m envs_jax.conformance",
         description="Replay golden traces of the original environments against the JAX envs.",
     )
-    parser.add_argument("files", nargs="+", help="trace files (.npz) in a format of shared/reference/*/TRACES.md")
+    parser.add_argument("files", nargs="+",
+                        help="trace files (.npz) in a format of docs/traces.md, e.g. tests/data/traces/*/*.npz")
     args = parser.parse_args(argv)
     total = matched = 0
     failed = False

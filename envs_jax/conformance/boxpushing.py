@@ -1,4 +1,4 @@
-"""Box Pushing trace adapter (format: ``shared/reference/boxpushing/TRACES.md``).
+"""Box Pushing trace adapter (format: ``docs/traces.md``).
 
 Two checks per file, both on device and vectorised:
 

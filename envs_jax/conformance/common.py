@@ -1,6 +1,6 @@
 """Shared pieces of the conformance harness: reports, field comparison, adapter registry.
 
-A *trace adapter* knows one trace format (``../shared/reference/*/TRACES.md``): it says
+A *trace adapter* knows one trace format (``docs/traces.md``): it says
 whether an opened ``.npz`` is in its format and replays it against our env, one-step from
 every recorded pre-state and as whole episodes from the recorded start state.
 """

@@ -1,4 +1,4 @@
-"""Trace adapter for Overcooked (format: ``shared/reference/overcooked/TRACES.md``).
+"""Trace adapter for Overcooked (format: ``docs/traces.md``).
 
 Two replays, run together as lanes of one compiled ``vmap(scan(step))`` (see ``replayer``):
 

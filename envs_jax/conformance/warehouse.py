@@ -1,4 +1,4 @@
-"""Warehouse trace adapter (format: ``shared/reference/warehouse/TRACES.md``).
+"""Warehouse trace adapter (format: ``docs/traces.md``).
 
 Rows of all episodes are concatenated; row 0 of an episode is its reset, row t >= 1 the
 result of step t. Two checks per file, each one compiled, vectorised call:
