@@ -14,7 +14,6 @@ from __future__ import annotations
 import argparse
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 
 
@@ -37,24 +36,12 @@ def qtot_rows(config, env, params, reset_ts, traj) -> tuple[np.ndarray, np.ndarr
     """(Q_tot f32[H + 1] of the greedy joint action at every row of the episode's slot, the discounted
     return-to-go f32[length] from every step, the episode's length). The rollout is one episode (leaves
     ``[H, ...]``) of ToMacVF's greedy policy with ``params``."""
-    from jaxmac.algos.tomacvf import free_at_rows, network_configs
+    from jaxmac.algos.tomacvf import build_model, greedy_q_tot
     from jaxmac.buffer.episode import SlotConfig, write_episode
-    from jaxmac.networks import Mixer, TemporalAgentNet, slot_inputs
-    from jaxmac.networks.agent import initial_carry
-    from jaxmac.networks.mixers import mix_actions
-    from jaxmac.targets import admissible_actions, conditional_greedy
 
-    agent_cfg, mixer_cfg = network_configs(config, env)
-    net, mixer = TemporalAgentNet(agent_cfg), Mixer(mixer_cfg)
     slot_config = SlotConfig.from_spec(env.spec)
     batch = jax.tree_util.tree_map(lambda x: x[None], write_episode(slot_config, reset_ts, traj))
-    inputs, tau = slot_inputs(batch, config.algo.obs_mode)
-    q, _, _ = net.apply(params["agent"], inputs, initial_carry(agent_cfg, (1,)), tau)
-    weights, _ = mixer.apply(params["mixer"], batch.decode_state(), inputs)
-    free = jnp.concatenate([free_at_rows(batch.mac_done), batch.mac_done[:, -1:]], 1)  # rows 0 … H
-    pinned = jnp.concatenate([batch.mac, batch.mac[:, -1:]], 1)
-    greedy = conditional_greedy(q, batch.avail, free, pinned)
-    q_tot = np.asarray(mix_actions(weights, q, greedy, admissible_actions(batch.avail, free, pinned)))[0]
+    q_tot = np.asarray(greedy_q_tot(build_model(config, env), params, batch))[0]
     length = int(batch.length[0])
     reward, gamma = np.asarray(traj.reward)[:length], env.spec.discount
     to_go = np.array([np.sum(reward[t:] * gamma ** np.arange(length - t)) for t in range(length)])

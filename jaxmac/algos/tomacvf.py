@@ -46,9 +46,17 @@ outputs are unpacked to the slots before the (unchanged) losses: the same values
 Acting (D17) is decentralised: each agent's GRU steps on its own observation stream and a
 free agent picks ε-greedily among its available macro-actions (τ = 0); the mixer is never
 used. In ``mac_jert`` mode the GRU steps only at joint decision points, as in training.
+
+Everything is a module-level pure function of a ``ToMacVFModel`` (the two networks and the switches, built once by
+``build_model``) and arrays: ``forward``, ``q_tot``, ``bootstrap``, ``micro_td``, ``macro_td``, ``sjert_terms``,
+``jert_terms``, ``greedy_q_tot``, ``step_values``, ``act``. ``make_tomacvf`` only wires them into the trainer's
+``Algorithm`` (with packing and length buckets as wrappers), and diagnostics call the same functions.
 """
 
 from __future__ import annotations
+
+import dataclasses
+import functools
 
 import jax
 import jax.numpy as jnp
@@ -56,6 +64,7 @@ import jax.numpy as jnp
 from envs_jax.core import MacroEnv
 from jaxmac.acting import epsilon_greedy
 from jaxmac.algos.base import Algorithm, default_optimizer, gradient_update
+from jaxmac.algos.settings import ToMacVFSettings
 from jaxmac.buckets import length_bucketed, packed_row_sizes, run_bucketed
 from jaxmac.buffer import packing, views
 from jaxmac.buffer.episode import EpisodeSlot
@@ -93,10 +102,92 @@ def network_configs(config: TrainConfig, env: MacroEnv) -> tuple[AgentNetConfig,
     return agent, mixer
 
 
+@dataclasses.dataclass(frozen=True)
+class ToMacVFModel:
+    """The static part of a ToMacVF learner: its agent network, its mixer (with ATPG) and its settings."""
+
+    agent_cfg: AgentNetConfig
+    mixer_cfg: MixerConfig
+    settings: ToMacVFSettings
+
+    @property
+    def net(self) -> TemporalAgentNet:
+        return TemporalAgentNet(self.agent_cfg)
+
+    @property
+    def mixer(self) -> Mixer:
+        return Mixer(self.mixer_cfg)
+
+    @property
+    def obs_mode(self) -> str:  # "macro" whenever buffer="mac_jert" (the settings refuse anything else)
+        return self.settings.obs_mode
+
+    @property
+    def squeezed(self) -> bool:  # trains on the Mac-JERT view (the w/o-Mac-SJERT ablation)
+        return self.settings.buffer == "mac_jert"
+
+    @property
+    def qtran(self) -> bool:
+        return self.mixer_cfg.family == "qtran"
+
+
+def build_model(config: TrainConfig, env: MacroEnv) -> ToMacVFModel:
+    return ToMacVFModel(*network_configs(config, env), config.algo)
+
+
+def init_params(model: ToMacVFModel, key) -> dict:
+    """``{"agent": …, "mixer": …}`` (the mixer holds ATPG)."""
+    k_agent, k_mixer = jax.random.split(key)
+    return {"agent": init_agent_params(model.agent_cfg, k_agent), "mixer": init_mixer_params(model.mixer_cfg, k_mixer)}
+
+
 def free_at_rows(mac_done: jax.Array) -> jax.Array:
     """bool[..., H, n]: the agent chooses at row t (t = 0, or its macro-action ended at step t − 1)."""
     first = jnp.ones_like(mac_done[..., :1, :])
     return jnp.concatenate([first, mac_done[..., :-1, :]], axis=-2)
+
+
+# --- acting ------------------------------------------------------------------------------------------------------
+
+def step_values(model: ToMacVFModel, params, carry, ts):
+    """(Q_i f32[n, A] of every macro-action at this timestep, valued at τ = 0, and the stepped GRU carry)."""
+    inputs = timestep_inputs(ts)
+    if model.obs_mode == "macro":
+        inputs = inputs.replace(obs=jnp.asarray(ts.obs_macro, jnp.float32))
+    tau = jnp.zeros_like(ts.t_m)  # free agents value their choice at τ = 0
+    return model.net.apply(params["agent"], inputs, carry, tau, method="step")
+
+
+def act(model: ToMacVFModel, params, carry, ts, key, epsilon):
+    """Decentralised ε-greedy acting (D17): (new carry, actions i32[n]); busy agents re-send their action."""
+    q, new_carry = step_values(model, params, carry, ts)
+    if model.squeezed:  # the GRU only sees joint decision points
+        new_carry = jnp.where(jnp.any(ts.mac_done), new_carry, carry)
+    return new_carry, epsilon_greedy(key, q, ts.avail_actions, ts.mac_done, ts.mac, epsilon)
+
+
+# --- the forward pass and the values the losses read -------------------------------------------------------------
+
+def forward(model: ToMacVFModel, params, inputs, tau, state):
+    """The agent GRUs and the mixer's weights over every row: (q f32[B, T, n, A], MixWeights [B, T])."""
+    b = inputs.t.shape[:-1]
+    q, _, _ = model.net.apply(params["agent"], inputs, initial_carry(model.agent_cfg, b), tau)
+    weights, _ = model.mixer.apply(params["mixer"], state, inputs)
+    return q, weights
+
+
+def packed_forward(model: ToMacVFModel, params, inputs, tau, state, plan, rows):
+    """``forward`` on the episodes packed into ``rows`` rows (``buffer.packing``), unpacked to their slots."""
+    layout = packing.packed_layout(plan, rows, inputs.t.shape[-1])
+    pk = lambda x: packing.pack(x, layout)  # noqa: E731
+    packed = jax.tree_util.tree_map(pk, inputs).replace(reset=layout.reset)
+    q, weights = forward(model, params, packed, pk(tau), pk(state))
+    return packing.unpack(q, plan), weights.map_rows(lambda x: packing.unpack(x, plan))
+
+
+def q_tot(weights, q, actions, avail, free):
+    """Q_tot of the executed joint ``actions`` at rows whose choosing agents are ``free``."""
+    return mix_actions(weights, q, actions, admissible_actions(avail, free, actions))
 
 
 def conditional_target(q_online, q_target, w_target, avail, free, pinned):
@@ -113,152 +204,136 @@ def conditional_target(q_online, q_target, w_target, avail, free, pinned):
     return mix_actions(w_target, q_target, joint, admissible_actions(avail, free, pinned)), joint
 
 
+def bootstrap(q_online, q_target, w_target, rows, avail, free, pinned):
+    """Q̄_tot at bootstrap ``rows`` [B, ...] with the conditional double-Q joint action."""
+    qo, qt, wt = (take_rows(x, rows, batch_ndim=1) for x in (q_online, q_target, w_target))
+    return conditional_target(qo, qt, wt, avail, free, pinned)[0]
+
+
+def greedy_q_tot(model: ToMacVFModel, params, batch: EpisodeSlot) -> jax.Array:
+    """f32[B, H + 1]: Q_tot of the conditional greedy joint action (D9: busy agents keep their macro-action) at every
+    row of the slots, row H being the time-limit bootstrap row of a truncated episode (a target, never a prediction)."""
+    inputs, tau = slot_inputs(batch, model.obs_mode)
+    q, weights = forward(model, params, inputs, tau, batch.decode_state())
+    free = jnp.concatenate([free_at_rows(batch.mac_done), batch.mac_done[:, -1:]], 1)  # rows 0 … H
+    pinned = jnp.concatenate([batch.mac, batch.mac[:, -1:]], 1)
+    greedy = conditional_greedy(q, batch.avail, free, pinned)
+    return mix_actions(weights, q, greedy, admissible_actions(batch.avail, free, pinned))
+
+
+# --- the losses ----------------------------------------------------------------------------------------------------
+
+def overestimate_weight(settings: ToMacVFSettings, progress):
+    """The TD weight where Q_tot is above its target: a python float when constant (bit-identical to a plain
+    constant), else the scheduled f32[]."""
+    if settings.overestimate_anneal_episodes == 0:
+        return settings.overestimate_weight
+    return linear_schedule(progress.episodes, settings.overestimate_anneal_start,
+                           settings.overestimate_anneal_episodes, settings.overestimate_weight,
+                           settings.overestimate_weight_end)
+
+
+def qtran_terms(model: ToMacVFModel, weights, q, actions, avail, free, mask) -> dict:
+    """QTRAN's constraint losses on the rows of ``mask`` (none for the other mixers)."""
+    if not model.qtran:
+        return {}
+    greedy = conditional_greedy(jax.lax.stop_gradient(q), avail, free, actions)
+    opt, nopt = qtran_penalties(weights, q, actions, greedy)
+    return {"qtran_opt_loss": masked_mean(opt**2, mask), "qtran_nopt_loss": masked_mean(nopt**2, mask)}
+
+
+def micro_td(micro: views.MicroView, q_tot_now, q_detached, q_tgt, w_tgt, weight):
+    """Micro-TD (D11) on every valid step: ``Q_tot(t)`` against ``Σ_{k<m} γ^k r_{t+k} + γ^m Q̄_tot(t+m)``."""
+    boot = bootstrap(q_detached, q_tgt, w_tgt, micro.boot_row, micro.boot_avail, micro.boot_free, micro.boot_mac)
+    y = jax.lax.stop_gradient(micro.ret + micro.boot_discount * boot)
+    return td_mse(q_tot_now - y, micro.mask, weight)
+
+
+def macro_td(macro: views.MacroView, q, w, avail, free, q_detached, q_tgt, w_tgt, weight):
+    """Macro-TD (D10) on every complete Mac-SJERT segment: ``Q_tot`` at its start row with the joint action in force
+    there against ``R_m + γ^τ Q̄_tot(end + 1)``. ``q``, ``w``, ``avail``, ``free`` are the slots' rows."""
+    at_start = lambda x: take_rows(x, macro.start, batch_ndim=1)  # noqa: E731  [B, n, K, ...]
+    q_tot_macro = q_tot(at_start(w), at_start(q), macro.start_mac, at_start(avail), at_start(free))
+    boot = bootstrap(q_detached, q_tgt, w_tgt, macro.boot_row, macro.boot_avail, macro.boot_free, macro.boot_mac)
+    y = jax.lax.stop_gradient(macro.reward + macro.discount * boot)
+    return td_mse(q_tot_macro - y, macro.mask, weight)
+
+
+def _with_time_limit(settings: ToMacVFSettings, batch: EpisodeSlot) -> EpisodeSlot:
+    return batch if settings.bootstrap_time_limit else views.time_limit_as_termination(batch)
+
+
+def sjert_terms(model: ToMacVFModel, params, target_params, batch: EpisodeSlot, progress, packed=None):
+    """Loss terms on Mac-SJERT {micro_loss, macro_loss, QTRAN's (``qtran`` only)}, unweighted, and metrics;
+    ``packed`` = (plan, rows) runs the networks on the episodes packed into that many rows (same values)."""
+    settings = model.settings
+    weight = overestimate_weight(settings, progress)
+    batch = _with_time_limit(settings, batch)
+    inputs, tau = slot_inputs(batch, model.obs_mode)
+    state = batch.decode_state()
+    if packed is None:
+        q, w = forward(model, params, inputs, tau, state)
+        q_tgt, w_tgt = forward(model, target_params, inputs, tau, state)
+    else:
+        q, w = packed_forward(model, params, inputs, tau, state, *packed)
+        q_tgt, w_tgt = packed_forward(model, target_params, inputs, tau, state, *packed)
+    q_detached = jax.lax.stop_gradient(q)
+    h = batch.mac.shape[-2]
+    free, avail = free_at_rows(batch.mac_done), batch.avail[:, :h]
+
+    micro = views.micro_view(batch, settings.n_step)
+    w_now, q_now = w.map_rows(lambda x: x[:, :h]), q[:, :h]
+    q_tot_micro = q_tot(w_now, q_now, micro.mac, avail, free)
+    terms = {"micro_loss": micro_td(micro, q_tot_micro, q_detached, q_tgt, w_tgt, weight)}
+    terms |= qtran_terms(model, w_now, q_now, micro.mac, avail, free, micro.mask)
+    terms["macro_loss"] = macro_td(views.macro_view(batch), q, w, avail, free, q_detached, q_tgt, w_tgt, weight)
+    return terms, {"q_tot_mean": masked_mean(q_tot_micro, micro.mask)} | weight_metric(weight)
+
+
+def jert_terms(model: ToMacVFModel, params, target_params, batch: EpisodeSlot, progress):
+    """The one TD loss on the Mac-JERT view (the w/o-Mac-SJERT ablation, D16) with the conditional target."""
+    weight = overestimate_weight(model.settings, progress)
+    jv, inputs, tau, state = jert_sequence(_with_time_limit(model.settings, batch))
+    q, w = forward(model, params, inputs, tau, state)
+    q_tgt, w_tgt = forward(model, target_params, inputs, tau, state)
+    kk = jv.mask.shape[-1]
+    w_now, q_now = w.map_rows(lambda x: x[:, :kk]), q[:, :kk]
+    free = free_at_rows(jv.free_next)  # the agents choosing at an entry ended their action at the one before
+    q_tot_now = q_tot(w_now, q_now, jv.mac, jv.avail, free)
+    nxt = jnp.broadcast_to(jnp.arange(1, kk + 1), jv.mask.shape)
+    boot = bootstrap(jax.lax.stop_gradient(q), q_tgt, w_tgt, nxt, jv.avail_next, jv.free_next, jv.next_mac)
+    y = jax.lax.stop_gradient(jv.reward + jv.discount * boot)
+    terms = {"micro_loss": td_mse(q_tot_now - y, jv.mask, weight), "macro_loss": jnp.zeros(())}
+    terms |= qtran_terms(model, w_now, q_now, jv.mac, jv.avail, free, jv.mask)
+    return terms, {"q_tot_mean": masked_mean(q_tot_now, jv.mask)} | weight_metric(weight)
+
+
+def term_weights(settings: ToMacVFSettings) -> dict[str, float]:
+    return {"micro_loss": 1.0, "macro_loss": settings.macro_loss_weight, "qtran_opt_loss": settings.qtran_opt_weight,
+            "qtran_nopt_loss": settings.qtran_nopt_weight}
+
+
+# --- the wiring ----------------------------------------------------------------------------------------------------
+
 def make_tomacvf(config: TrainConfig, env: MacroEnv) -> Algorithm:
-    agent_cfg, mixer_cfg = network_configs(config, env)
-    net = TemporalAgentNet(agent_cfg)
-    mixer = Mixer(mixer_cfg)
+    model = build_model(config, env)
     settings = config.algo
-    obs_mode = settings.obs_mode  # "macro" whenever buffer="mac_jert" (the settings refuse anything else)
-    squeezed = settings.buffer == "mac_jert"
-    qtran = mixer_cfg.family == "qtran"
-    lam = settings.macro_loss_weight
-
-    def overestimate_weight(progress):
-        """The TD weight where Q_tot is above its target: a python float when constant (bit-identical to a
-        plain constant), else the scheduled f32[]."""
-        if settings.overestimate_anneal_episodes == 0:
-            return settings.overestimate_weight
-        return linear_schedule(progress.episodes, settings.overestimate_anneal_start,
-                               settings.overestimate_anneal_episodes, settings.overestimate_weight,
-                               settings.overestimate_weight_end)
-
-    def init_params(key):
-        k_agent, k_mixer = jax.random.split(key)
-        return {"agent": init_agent_params(agent_cfg, k_agent), "mixer": init_mixer_params(mixer_cfg, k_mixer)}
-
-    # --- acting -------------------------------------------------------------------------
-    def init_carry(num_agents: int):
-        return initial_carry(agent_cfg)
-
-    def step_values(params, carry, ts):
-        """(Q_i f32[n, A] of every macro-action at this step, the stepped carry)."""
-        inputs = timestep_inputs(ts)
-        if obs_mode == "macro":
-            inputs = inputs.replace(obs=jnp.asarray(ts.obs_macro, jnp.float32))
-        tau = jnp.zeros_like(ts.t_m)  # free agents value their choice at τ = 0
-        return net.apply(params["agent"], inputs, carry, tau, method="step")
-
-    def act(params, carry, ts, key, epsilon):
-        q, new_carry = step_values(params, carry, ts)
-        if squeezed:  # the GRU only sees joint decision points
-            new_carry = jnp.where(jnp.any(ts.mac_done), new_carry, carry)
-        return new_carry, epsilon_greedy(key, q, ts.avail_actions, ts.mac_done, ts.mac, epsilon)
-
-    # --- shared by both buffers ------------------------------------------------------------
-    with_time_limit = (lambda batch: batch) if settings.bootstrap_time_limit else views.time_limit_as_termination
-
-    def forward(params, inputs, tau, state):
-        b = inputs.t.shape[:-1]
-        q, _, _ = net.apply(params["agent"], inputs, initial_carry(agent_cfg, b), tau)
-        weights, _ = mixer.apply(params["mixer"], state, inputs)
-        return q, weights
-
-    def packed_forward(params, inputs, tau, state, plan, rows):
-        """``forward`` on the episodes packed into ``rows`` rows (``buffer.packing``), unpacked to their slots."""
-        layout = packing.packed_layout(plan, rows, inputs.t.shape[-1])
-        pk = lambda x: packing.pack(x, layout)  # noqa: E731
-        packed = jax.tree_util.tree_map(pk, inputs).replace(reset=layout.reset)
-        q, weights = forward(params, packed, pk(tau), pk(state))
-        return packing.unpack(q, plan), weights.map_rows(lambda x: packing.unpack(x, plan))
-
-    def q_tot(weights, q, actions, avail, free):
-        """Q_tot of the executed joint ``actions`` at rows whose choosing agents are ``free``."""
-        return mix_actions(weights, q, actions, admissible_actions(avail, free, actions))
-
-    def bootstrap(q_online, q_target, w_target, rows, avail, free, pinned):
-        """Q̄_tot at bootstrap ``rows`` [B, ...] with the conditional double-Q joint action."""
-        qo, qt, wt = (take_rows(x, rows, batch_ndim=1) for x in (q_online, q_target, w_target))
-        return conditional_target(qo, qt, wt, avail, free, pinned)[0]
-
-    def qtran_terms(weights, q, actions, avail, free, mask):
-        """QTRAN's constraint losses on the rows of ``mask`` (none for the other mixers)."""
-        if not qtran:
-            return {}
-        greedy = conditional_greedy(jax.lax.stop_gradient(q), avail, free, actions)
-        opt, nopt = qtran_penalties(weights, q, actions, greedy)
-        return {"qtran_opt_loss": masked_mean(opt**2, mask), "qtran_nopt_loss": masked_mean(nopt**2, mask)}
-
-    # --- learning on Mac-SJERT ------------------------------------------------------------
-    def sjert_terms(params, target_params, batch: EpisodeSlot, progress, packed=None):
-        """Loss terms {micro_loss, macro_loss, QTRAN's (``qtran`` only)}, unweighted, and metrics; ``packed`` =
-        (plan, rows) runs the networks on the episodes packed into that many rows (same values)."""
-        weight = overestimate_weight(progress)
-        batch = with_time_limit(batch)
-        inputs, tau = slot_inputs(batch, obs_mode)
-        state = batch.decode_state()
-        if packed is None:
-            q, w = forward(params, inputs, tau, state)
-            q_tgt, w_tgt = forward(target_params, inputs, tau, state)
-        else:
-            q, w = packed_forward(params, inputs, tau, state, *packed)
-            q_tgt, w_tgt = packed_forward(target_params, inputs, tau, state, *packed)
-        q_detached = jax.lax.stop_gradient(q)
-        h = batch.mac.shape[-2]
-        free, avail = free_at_rows(batch.mac_done), batch.avail[:, :h]
-
-        micro = views.micro_view(batch, settings.n_step)
-        w_now, q_now = w.map_rows(lambda x: x[:, :h]), q[:, :h]
-        q_tot_micro = q_tot(w_now, q_now, micro.mac, avail, free)
-        boot = bootstrap(q_detached, q_tgt, w_tgt, micro.boot_row, micro.boot_avail, micro.boot_free,
-                         micro.boot_mac)
-        y_micro = jax.lax.stop_gradient(micro.ret + micro.boot_discount * boot)
-        terms = {"micro_loss": td_mse(q_tot_micro - y_micro, micro.mask, weight)}
-        terms |= qtran_terms(w_now, q_now, micro.mac, avail, free, micro.mask)
-
-        macro = views.macro_view(batch)  # leaves [B, n, K, ...]
-        at_start = lambda x: take_rows(x, macro.start, batch_ndim=1)  # noqa: E731  [B, n, K, ...]
-        q_tot_macro = q_tot(at_start(w), at_start(q), macro.start_mac, at_start(avail), at_start(free))
-        boot_m = bootstrap(q_detached, q_tgt, w_tgt, macro.boot_row, macro.boot_avail, macro.boot_free,
-                           macro.boot_mac)
-        y_macro = jax.lax.stop_gradient(macro.reward + macro.discount * boot_m)
-        terms["macro_loss"] = td_mse(q_tot_macro - y_macro, macro.mask, weight)
-        return terms, {"q_tot_mean": masked_mean(q_tot_micro, micro.mask)} | weight_metric(weight)
-
-    # --- learning on Mac-JERT (ablation) ---------------------------------------------------
-    def jert_terms(params, target_params, batch: EpisodeSlot, progress):
-        weight = overestimate_weight(progress)
-        jv, inputs, tau, state = jert_sequence(with_time_limit(batch))
-        q, w = forward(params, inputs, tau, state)
-        q_tgt, w_tgt = forward(target_params, inputs, tau, state)
-        kk = jv.mask.shape[-1]
-        w_now, q_now = w.map_rows(lambda x: x[:, :kk]), q[:, :kk]
-        free = free_at_rows(jv.free_next)  # the agents choosing at an entry ended their action at the one before
-        q_tot_now = q_tot(w_now, q_now, jv.mac, jv.avail, free)
-        nxt = jnp.broadcast_to(jnp.arange(1, kk + 1), jv.mask.shape)
-        boot = bootstrap(jax.lax.stop_gradient(q), q_tgt, w_tgt, nxt, jv.avail_next, jv.free_next, jv.next_mac)
-        y = jax.lax.stop_gradient(jv.reward + jv.discount * boot)
-        terms = {"micro_loss": td_mse(q_tot_now - y, jv.mask, weight), "macro_loss": jnp.zeros(())}
-        terms |= qtran_terms(w_now, q_now, jv.mac, jv.avail, free, jv.mask)
-        return terms, {"q_tot_mean": masked_mean(q_tot_now, jv.mask)} | weight_metric(weight)
-
-    terms_of = jert_terms if squeezed else sjert_terms
-    term_weights = {"micro_loss": 1.0, "macro_loss": lam, "qtran_opt_loss": settings.qtran_opt_weight,
-                    "qtran_nopt_loss": settings.qtran_nopt_weight}
+    terms_of = functools.partial(jert_terms if model.squeezed else sjert_terms, model)
+    weights = term_weights(settings)
 
     def loss_of(terms_fn):
         def loss(params, target_params, batch: EpisodeSlot, key, progress):
             del key
             terms, metrics = terms_fn(params, target_params, batch, progress)
-            return weighted_sum(terms, term_weights), metrics | terms
+            return weighted_sum(terms, weights), metrics | terms
 
         return loss
 
-    loss = loss_of(terms_of)
     optimizer = default_optimizer(config)
 
     def make_update(terms_fn):
         if settings.sequential_updates:
-            return sequential_update(terms_fn, term_weights, optimizer)
+            return sequential_update(terms_fn, weights, optimizer)
         return gradient_update(loss_of(terms_fn), optimizer)
 
     if settings.packing:
@@ -269,7 +344,7 @@ def make_tomacvf(config: TrainConfig, env: MacroEnv) -> Algorithm:
             def with_rows(rows):
                 # as many rows as episodes: nothing to gain from packing, the networks run on the slots themselves
                 packed = None if rows == batch.length.shape[0] else (plan, rows)
-                terms_fn = lambda p, t, b, pr: sjert_terms(p, t, b, pr, packed=packed)  # noqa: E731
+                terms_fn = lambda p, t, b, pr: sjert_terms(model, p, t, b, pr, packed=packed)  # noqa: E731
                 return make_update(terms_fn)(params, target_params, opt_state, batch, key, progress)
 
             sizes = packed_row_sizes(batch.length.shape[0], config.length_buckets)
@@ -278,8 +353,10 @@ def make_tomacvf(config: TrainConfig, env: MacroEnv) -> Algorithm:
         # on the batch's shortest prefix that holds its longest episode (the full horizon when length_buckets = 1)
         update = length_bucketed(make_update(terms_of), config.length_buckets, lambda batch: batch.config.horizon,
                                  lambda batch: jnp.max(batch.length))
-    return Algorithm(name="tomacvf", init_params=init_params, init_carry=init_carry, act=act, loss=loss,
-                     optimizer=optimizer, update=update, values=lambda p, c, ts: step_values(p, c, ts)[0])
+    return Algorithm(name="tomacvf", init_params=functools.partial(init_params, model),
+                     init_carry=lambda num_agents: initial_carry(model.agent_cfg),
+                     act=functools.partial(act, model), loss=loss_of(terms_of), optimizer=optimizer, update=update,
+                     values=lambda p, c, ts: step_values(model, p, c, ts)[0])
 
 
 def weight_metric(weight) -> dict:
