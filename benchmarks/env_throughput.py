@@ -21,7 +21,7 @@ import envs_jax
 from envs_jax.policies import uniform_random_actions
 
 # Primitive steps per CPU-second of the original Python envs (single env, random policy,
-# measured on this 2-core machine kind; see the issues / BASELINES.md §4).
+# measured on this 2-core machine kind; see the issues / docs/baselines.md §4).
 ORIGINAL_STEPS_PER_SECOND = {
     "boxpushing": 45_000,
     "overcooked-A": 7_500,

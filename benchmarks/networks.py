@@ -32,7 +32,7 @@ from jaxmac.networks import (
     initial_carry,
     mix,
 )
-from jaxmac.targets import gather_q
+from jaxmac.ops import gather_q
 
 SHAPES = {"BP-like": dict(n=2, obs=5, actions=8, state=18), "OC-like": dict(n=3, obs=32, actions=14, state=32)}
 

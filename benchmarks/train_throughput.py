@@ -9,7 +9,7 @@ share of the seeds (compile time reported apart) and then times ``--chunks`` chu
 scenario's configuration of that algorithm (warm-up chunks first fill the ring up to where
 gradient steps run). Printed: training episodes/s and env steps/s per seed and in total, wall and
 per CPU-second, and the ratio to the original implementation's recorded speed per CPU-second of
-all its processes (BASELINES.md §4, measured on this machine kind): the same learner where the
+all its processes (docs/baselines.md §4, measured on this machine kind): the same learner where the
 original has it, Mac-IAICC (the fastest original) for ToMacVF.
 
     python benchmarks/train_throughput.py --compare [--algorithm tomacvf] [--scenario S ...] [--from-run RUN ...]
@@ -29,7 +29,7 @@ import subprocess
 import sys
 import time
 
-# The originals' recorded speed (BASELINES.md §4): (episodes/CPU-s, env steps/CPU-s, which original).
+# The originals' recorded speed (docs/baselines.md §4): (episodes/CPU-s, env steps/CPU-s, which original).
 ORIGINAL = {
     "tomacvf": {"boxpushing-6x6": (37.133, 875.7, "Mac-IAICC"), "overcooked-A": (2.719, 546.8, "Mac-IAICC")},
     "maccen_ddrqn": {"boxpushing-6x6": (5.176, 133.8, "MacCen-Q"), "overcooked-A": (0.577, 115.8, "MacCen-Q")},

@@ -1,7 +1,7 @@
 """Macro-action Box Pushing (the original ``BP-MA-v0``) as a pure-functional JAX env.
 
 Two agents on a ``g × g`` grid push two small boxes or, together, one big box to the top
-row. Exactly per ``shared/reference/boxpushing/SPEC.md``, quirks included (stale waypoint
+row. Exactly per ``docs/envs/boxpushing.md``, quirks included (stale waypoint
 memory Q1, no agent collisions Q2, the planner's SB0-row obstacle test and unclamped
 positions Q3, sequential resolution Q18, non-absorbing terminal Q11, …).
 

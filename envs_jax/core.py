@@ -18,7 +18,7 @@ Macro-action bookkeeping common to all domains is done here, once:
   are ignored, exactly as in the original environments;
 * ``obs_macro`` is the MacDec-POMDP macro-observation (refreshed only where the agent's
   macro-action just ended), ``obs_real`` the same observation function evaluated every
-  primitive step (DECISIONS.md D1);
+  primitive step (docs/decisions.md D1);
 * ``t_m`` is the progress of the macro-action executed during the step (0 on its first
   primitive step), so a segment ending at ``t`` started at ``t - t_m[t]``;
 * ``truncated`` marks the step at which the horizon is reached without termination.

@@ -13,7 +13,7 @@ import jax
 import jax.numpy as jnp
 
 from envs_jax.policies import uniform_random_actions
-from jaxmac.networks.agent import masked_argmax
+from jaxmac.ops import masked_argmax
 from jaxmac.schedules import linear_schedule
 from jaxmac.targets import joint_conditional_argmax
 

@@ -1,4 +1,4 @@
-"""Pieces of the macro-action actor-critics (Mac-IAICC, Mac-NIACC, Mac-CAC; BASELINES.md §1.0, §1.4–1.6).
+"""Pieces of the macro-action actor-critics (Mac-IAICC, Mac-NIACC, Mac-CAC; docs/baselines.md §1.0, §1.4–1.6).
 
 They learn on-policy from the ``num_envs`` episodes just collected (no replay), each update being a critic step
 followed by an actor step whose advantages come from the *updated* critic (``critic_then_actor_update``).
@@ -39,9 +39,9 @@ from jaxmac.centralised import joint_obs
 from jaxmac.decentralised import init_agent_drqn
 from jaxmac.decentralised import sequence_q as decentralised_sequence
 from jaxmac.losses import masked_mean, td_mse
-from jaxmac.networks.agent import MASK_VALUE, masked_argmax
+from jaxmac.ops import MASK_VALUE, gather_q, masked_argmax
 from jaxmac.networks.drqn import DRQN, AgentDRQN, AgentStateCritic, StateCritic
-from jaxmac.targets import gather_q, joint_mask, unravel_joint
+from jaxmac.targets import joint_mask, unravel_joint
 
 
 def real_action_mask(action_counts: Sequence[int], width: int) -> np.ndarray:

@@ -2,7 +2,7 @@
 
 A centralised recurrent Q reads the concatenation of every agent's frozen macro-observation and outputs one
 value per joint macro-action (|M_1|·…·|M_n|, row-major as in ``jaxmac.targets``); it is trained on Mac-JERT
-windows with the conditional double-Q target (BASELINES.md §1.2) and acts as a centralised controller.
+windows with the conditional double-Q target (docs/baselines.md §1.2) and acts as a centralised controller.
 """
 
 from __future__ import annotations

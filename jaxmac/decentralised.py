@@ -1,7 +1,7 @@
 """Pieces of the decentralised recurrent Q learners (MacDec-Q, the decentralised half of Mac-Dec-MADDRQN).
 
 Each agent has its own DRQN (``networks.drqn.AgentDRQN``) over its own frozen macro-observations at its own
-decision points (Mac-CERT, BASELINES.md §1.1), trained with the hysteretic double-Q target::
+decision points (Mac-CERT, docs/baselines.md §1.1), trained with the hysteretic double-Q target::
 
     y_i = R_i + γ^{τ_i} Q_i⁻(h′_i, a′_i) · (1 − terminal),   δ = y_i − Q_i(h_i, m_i),   δ ← max(β δ, δ)
 
@@ -19,10 +19,9 @@ import jax.numpy as jnp
 from jaxmac.acting import epsilon_greedy
 from jaxmac.buffer import windows
 from jaxmac.losses import masked_mean, td_mse
-from jaxmac.networks.agent import masked_argmax
 from jaxmac.networks.drqn import AgentDRQN
 from jaxmac.schedules import linear_schedule
-from jaxmac.targets import gather_q
+from jaxmac.ops import gather_q, masked_argmax
 
 
 def init_agent_drqn(net: AgentDRQN, key: chex.PRNGKey, num_agents: int, obs_dim: int):

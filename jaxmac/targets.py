@@ -1,4 +1,4 @@
-"""Conditional greedy actions for bootstrap targets (BASELINES.md §0 fact 2, DECISIONS D9).
+"""Conditional greedy actions for bootstrap targets (docs/baselines.md §0 fact 2, DECISIONS D9).
 
 At a joint decision point only the *free* agents (their macro-action just ended) choose; agents still
 executing are pinned to their running macro-action. Two forms:
@@ -22,7 +22,7 @@ import chex
 import jax.numpy as jnp
 import numpy as np
 
-from jaxmac.networks.agent import MASK_VALUE, masked_argmax
+from jaxmac.ops import MASK_VALUE, masked_argmax
 
 
 def conditional_greedy(q: chex.Array, avail: chex.Array, free: chex.Array, running: chex.Array) -> chex.Array:
@@ -48,15 +48,6 @@ def admissible_actions(avail: chex.Array, free: chex.Array, running: chex.Array)
     """
     pinned = (jnp.arange(avail.shape[-1]) == running[..., None]) | ((running[..., None] < 0) & avail)
     return jnp.where(free[..., None], avail, pinned)
-
-
-def gather_q(q: chex.Array, actions: chex.Array) -> chex.Array:
-    """Q_i of a joint action: f32[..., n] from ``q`` f32[..., n, A] and ``actions`` i32[..., n].
-
-    Negative actions (padding, ``mac = -1``) gather action 0; mask those entries in the loss.
-    """
-    a = jnp.clip(actions, 0, q.shape[-1] - 1)
-    return jnp.take_along_axis(q, a[..., None], axis=-1)[..., 0]
 
 
 def joint_action_count(action_counts: Sequence[int]) -> int:

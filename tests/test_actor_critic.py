@@ -26,7 +26,7 @@ from jaxmac.algos.base import Progress, per_part_optimizer
 from jaxmac.algos.settings import SCENARIOS
 from jaxmac.config import make_env, scenario_config
 from jaxmac.decentralised import init_agent_drqn
-from jaxmac.networks.agent import MASK_VALUE
+from jaxmac.ops import MASK_VALUE
 from jaxmac.networks.drqn import DRQN, AgentDRQN, AgentStateCritic, StateCritic
 
 def entries_of(info, gamma, agent=None):

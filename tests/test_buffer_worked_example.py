@@ -1,4 +1,4 @@
-"""BASELINES.md §2.2: the 2-agent, 6-step worked example, every view written out.
+"""docs/baselines.md §2.2: the 2-agent, 6-step worked example, every view written out.
 
 Steps are 0-indexed here (the document's step k is our step k-1). Agent 0 runs m0¹ on steps
 0-2 and m1¹ on 3-5; agent 1 runs m0² on 0-1, m1² on 2-4, m2² on 5; the episode terminates

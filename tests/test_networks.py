@@ -19,7 +19,6 @@ from jaxmac.buffer import episode, views
 from jaxmac.encodings import EncodingConfig
 from jaxmac.networks import (
     ATPG,
-    MASK_VALUE,
     AgentNetConfig,
     ATPGConfig,
     Mixer,
@@ -31,15 +30,14 @@ from jaxmac.networks import (
     init_mixer_params,
     initial_carry,
     jert_inputs,
-    mask_unavailable,
-    masked_argmax,
     mix,
     slot_inputs,
     take_rows,
     temporal_mask,
     timestep_inputs,
 )
-from jaxmac.targets import conditional_greedy, gather_q
+from jaxmac.ops import MASK_VALUE, gather_q, mask_unavailable, masked_argmax
+from jaxmac.targets import conditional_greedy
 
 N, O, A, S, B, T = 3, 5, 4, 6, 2, 10
 FAST = dict(xla_backend_optimization_level=0, xla_llvm_disable_expensive_passes=True)

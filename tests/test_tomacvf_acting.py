@@ -14,7 +14,7 @@ from jaxmac.algos import make_algorithm
 from jaxmac.algos.tomacvf import network_configs
 from jaxmac.config import make_env, scenario_config
 from jaxmac.networks import TemporalAgentNet, initial_carry, timestep_inputs
-from jaxmac.networks.agent import masked_argmax
+from jaxmac.ops import masked_argmax
 
 KEYS = 4000  # draws per frequency check
 

@@ -4,7 +4,7 @@
 
 3 agents on a 7×7 kitchen must chop a tomato, a lettuce and an onion, put them on one plate and
 deliver it (task 6, lettuce-onion-tomato salad). Behaviour follows
-``shared/reference/overcooked/SPEC.md`` exactly, quirks included; modules:
+``docs/envs/overcooked.md`` exactly, quirks included; modules:
 
 * ``layouts``     maps, canonical object order, macro-action lists (static, numpy)
 * ``world``       state dataclass, true grid, beliefs, belief maps, observations

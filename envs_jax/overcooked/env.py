@@ -29,7 +29,7 @@ from envs_jax.overcooked.world import OvercookedState
 class OvercookedConfig:
     """Overridable settings (``envs_jax.make("overcooked-A", horizon=300, reward_wrong=-10.0)``).
 
-    Defaults are the MacroMARL experiment settings (SPEC header, DECISIONS.md D14)."""
+    Defaults are the MacroMARL experiment settings (SPEC header, docs/decisions.md D14)."""
 
     horizon: int = 200  # primitive steps before truncation (the training loop's env_terminate_step)
     discount: float = 0.99

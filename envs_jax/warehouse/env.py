@@ -1,6 +1,6 @@
 """Warehouse Tool Delivery (MacroMARL "OSD") as a pure-JAX :class:`MacroEnv`.
 
-Behaviour is ``shared/reference/warehouse/SPEC.md``; section numbers below refer to it.
+Behaviour is ``docs/envs/warehouse.md``; section numbers below refer to it.
 One primitive step (§5) is factored into
 
     noise = env.sample_noise(key, core)                 # all randomness of the step

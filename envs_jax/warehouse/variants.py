@@ -1,6 +1,6 @@
 """Warehouse Tool Delivery variants A–E: fixed layouts and the overridable configuration.
 
-Numbers follow ``shared/reference/warehouse/SPEC.md`` §1–§2 (the experiment configs of the
+Numbers follow ``docs/envs/warehouse.md`` §1–§2 (the experiment configs of the
 original MacroMARL scripts). A :class:`Layout` is the static geometry of a variant (never
 overridden); a :class:`WarehouseConfig` holds the knobs ``envs_jax.make`` accepts as overrides.
 

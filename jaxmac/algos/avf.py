@@ -1,4 +1,4 @@
-"""AVF (asynchronous value factorisation; Marchesini, Xiao, Amato; BASELINES.md §1.7) on Mac-JERT.
+"""AVF (asynchronous value factorisation; Marchesini, Xiao, Amato; docs/baselines.md §1.7) on Mac-JERT.
 
 Each agent has a recurrent Q_i (``networks.drqn.AgentDRQN``) stepping at every joint decision point on its own
 frozen macro-observation; a mixer (VDN, QMIX or QPLEX) combines the utilities of the joint macro-action into

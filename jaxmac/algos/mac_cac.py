@@ -1,4 +1,4 @@
-"""Mac-CAC (centralised macro-action actor-critic; BASELINES.md §1.4): one joint actor, one joint critic.
+"""Mac-CAC (centralised macro-action actor-critic; docs/baselines.md §1.4): one joint actor, one joint critic.
 
 The actor π(m^J | h^J) reads the joint macro-observation history at every joint decision point (Mac-JERT) and
 outputs logits over the joint macro-action space |M_1|·…·|M_n|. Acting samples from ``π_ε`` *conditionally*:

@@ -1,4 +1,4 @@
-"""Mac-IAICC (MacroMARL's main actor-critic learner; BASELINES.md §1.6): independent actors, individual centralised
+"""Mac-IAICC (MacroMARL's main actor-critic learner; docs/baselines.md §1.6): independent actors, individual centralised
 critics.
 
 Each agent i has an actor π_i(m_i | h_i) over its own Mac-CERT history and its own critic V_i, trained on its own

@@ -1,4 +1,4 @@
-"""Mac-NIACC ("naive" Mac-IACC; BASELINES.md §1.5): independent actors, one joint centralised critic.
+"""Mac-NIACC ("naive" Mac-IACC; docs/baselines.md §1.5): independent actors, one joint centralised critic.
 
 One critic V over joint decision points (Mac-JERT) is trained with joint n-step macro returns; agent i's
 macro-action k takes the *joint* advantage of the joint entry at which it ended::

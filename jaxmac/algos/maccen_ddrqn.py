@@ -1,4 +1,4 @@
-"""Mac-Cen-DDRQN (MacCen-Q of MacroMARL, BASELINES.md §1.2): one centralised recurrent Q over joint macro-actions.
+"""Mac-Cen-DDRQN (MacCen-Q of MacroMARL, docs/baselines.md §1.2): one centralised recurrent Q over joint macro-actions.
 
 The net reads the concatenation of every agent's frozen macro-observation and outputs one value per joint
 macro-action. It is trained on Mac-JERT — the steps where any macro-action ended, with the joint reward

@@ -1,4 +1,4 @@
-"""Mac-Dec-MADDRQN (MacDec-DDRQN, ICRA'20; BASELINES.md §1.3): a centralised joint Q teaches decentralised agents.
+"""Mac-Dec-MADDRQN (MacDec-DDRQN, ICRA'20; docs/baselines.md §1.3): a centralised joint Q teaches decentralised agents.
 
 Two networks trained together on the same windows:
 

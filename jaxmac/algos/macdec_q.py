@@ -1,4 +1,4 @@
-"""MacDec-Q (Dec-HDDRQN with Mac-CERTs, CoRL'19; BASELINES.md §1.1): independent recurrent Q per agent.
+"""MacDec-Q (Dec-HDDRQN with Mac-CERTs, CoRL'19; docs/baselines.md §1.1): independent recurrent Q per agent.
 
 Each agent's DRQN reads its own frozen macro-observations at its own decision points and is trained on its
 Mac-CERT transitions (reward accumulated over its own macro-action, γ^τ bootstrap) with hysteretic double-Q

@@ -6,8 +6,8 @@ block is a frozen dataclass with its own validation; ``jaxmac.config`` routes ``
 shared fields or to the block, and rejects a name that belongs to another algorithm.
 
 ``SCENARIO_VALUES[algorithm][scenario]`` holds the values of the original scripts (ToMacVF: the paper's
-appendix tables as read by DECISIONS.md; baselines: MacroMARL's ``experiments/*.sh``, see
-``shared/design/HYPERPARAMS.md``), shared and block fields together in one flat dict.
+appendix tables as read by docs/decisions.md; baselines: MacroMARL's ``experiments/*.sh``, see
+``docs/hyperparameters.md``), shared and block fields together in one flat dict.
 
 This module imports nothing heavy, so the CLI validates a configuration before JAX starts.
 """
@@ -135,7 +135,7 @@ class ToMacVFSettings:
 
 @dataclasses.dataclass(frozen=True)
 class DRQNSettings:
-    """Fields every MacroMARL-style recurrent value learner shares (BASELINES.md §1.0–1.3).
+    """Fields every MacroMARL-style recurrent value learner shares (docs/baselines.md §1.0–1.3).
 
     ``trace_len`` > 0 samples windows of that many primitive steps from stored episodes (the originals on
     Box Pushing); 0 samples whole episodes (``sample_epi``). ``h_explore`` keeps the recurrent state while
@@ -178,7 +178,7 @@ class HystereticDRQNSettings(DRQNSettings):
 
 @dataclasses.dataclass(frozen=True)
 class MacCenDDRQNSettings(DRQNSettings):
-    """Mac-Cen-DDRQN (MacCen-Q, BASELINES.md §1.2): one centralised recurrent Q over the joint action space (plain
+    """Mac-Cen-DDRQN (MacCen-Q, docs/baselines.md §1.2): one centralised recurrent Q over the joint action space (plain
     MSE: the scripts' hysteresis is 1)."""
 
     rnn_size: int = 64
@@ -191,7 +191,7 @@ class MacCenDDRQNSettings(DRQNSettings):
 
 @dataclasses.dataclass(frozen=True)
 class MacDecQSettings(HystereticDRQNSettings):
-    """MacDec-Q (Dec-HDDRQN on Mac-CERT, BASELINES.md §1.1): per-agent DRQNs, hysteretic double-Q."""
+    """MacDec-Q (Dec-HDDRQN on Mac-CERT, docs/baselines.md §1.1): per-agent DRQNs, hysteretic double-Q."""
 
     def __post_init__(self):
         self._validate("macdec_q")
@@ -199,7 +199,7 @@ class MacDecQSettings(HystereticDRQNSettings):
 
 @dataclasses.dataclass(frozen=True)
 class MacDecDDRQNSettings(HystereticDRQNSettings):
-    """Mac-Dec-MADDRQN (BASELINES.md §1.3): MacCen-Q plus per-agent DRQNs whose targets take their component of
+    """Mac-Dec-MADDRQN (docs/baselines.md §1.3): MacCen-Q plus per-agent DRQNs whose targets take their component of
     the centralised conditional argmax. ``rnn_size``/``mlp_sizes`` are the decentralised nets'."""
 
     trace_len: int = 15
@@ -220,7 +220,7 @@ class MacDecDDRQNSettings(HystereticDRQNSettings):
 
 @dataclasses.dataclass(frozen=True)
 class AVFSettings(DRQNSettings):
-    """AVF (BASELINES.md §1.7): per-agent recurrent Q on Mac-JERT, mixed into Q_tot, conditional double-Q.
+    """AVF (docs/baselines.md §1.7): per-agent recurrent Q on Mac-JERT, mixed into Q_tot, conditional double-Q.
 
     ``scheme``: 'd0' trains every agent's utility at every joint transition; 'd1' gives agents whose
     macro-action is still running zero gradient (their utility enters Q_tot detached); 'd2' gives them zero
@@ -246,7 +246,7 @@ class AVFSettings(DRQNSettings):
 
 @dataclasses.dataclass(frozen=True)
 class ActorCriticSettings:
-    """What the macro-action actor-critics share (BASELINES.md §1.0, §1.4–1.6). The actor's learning rate is the
+    """What the macro-action actor-critics share (docs/baselines.md §1.0, §1.4–1.6). The actor's learning rate is the
     shared ``lr``; ``critic_lr`` the critic's. ``n_step`` macro transitions per critic target (the scripts'
     ``n_step_TD``: 0 and 1 both mean one-step, written 1 here). Networks as the originals: fc–fc–GRU–fc–fc actors
     and history critics, ``critic_mid_size`` the middle layer of a state critic."""
@@ -289,7 +289,7 @@ class IndependentActorsSettings(ActorCriticSettings):
 
 @dataclasses.dataclass(frozen=True)
 class MacIAICCSettings(IndependentActorsSettings):
-    """Mac-IAICC (BASELINES.md §1.6): per-agent actors, an individual centralised critic V_i per agent."""
+    """Mac-IAICC (docs/baselines.md §1.6): per-agent actors, an individual centralised critic V_i per agent."""
 
     def __post_init__(self):
         self._validate("mac_iaicc")
@@ -297,7 +297,7 @@ class MacIAICCSettings(IndependentActorsSettings):
 
 @dataclasses.dataclass(frozen=True)
 class MacNIACCSettings(IndependentActorsSettings):
-    """Mac-NIACC (BASELINES.md §1.5): per-agent actors, one joint critic, the joint ("naive") advantage."""
+    """Mac-NIACC (docs/baselines.md §1.5): per-agent actors, one joint critic, the joint ("naive") advantage."""
 
     def __post_init__(self):
         self._validate("mac_niacc")
@@ -305,7 +305,7 @@ class MacNIACCSettings(IndependentActorsSettings):
 
 @dataclasses.dataclass(frozen=True)
 class MacCACSettings(ActorCriticSettings):
-    """Mac-CAC (BASELINES.md §1.4): one joint actor over the joint macro-action space and one joint history critic."""
+    """Mac-CAC (docs/baselines.md §1.4): one joint actor over the joint macro-action space and one joint history critic."""
 
     max_joint_actions: int = 4096
 
@@ -365,7 +365,7 @@ TOMACVF: dict[str, dict[str, Any]] = {
     name: dict(values, **TOMACVF_LEARNING_CHANGES.get(name, {})) for name, values in TOMACVF_PAPER.items()
 }
 
-# MacroMARL's value-based scripts (mac_cen_q.sh / mac_dec_q.sh, HYPERPARAMS.md): one gradient step every
+# MacroMARL's value-based scripts (mac_cen_q.sh / mac_dec_q.sh, docs/hyperparameters.md): one gradient step every
 # train_freq env steps after start_train episodes, hard target copy every 5000 env steps (the default), no
 # gradient clipping, ε 1 → eps_end linearly over eps_l_d_steps episodes counted from start_train, one greedy
 # evaluation episode per 100 (we run 10: the same policy, a less noisy curve). Where a scenario has no block the
@@ -420,7 +420,7 @@ MACDEC_Q: dict[str, dict[str, Any]] = {
     "warehouse-C": _DEC_WHC, "warehouse-D": _DEC_WHC, "warehouse-E": _DEC_WHC,
 }
 
-# Mac-Dec-MADDRQN has no script in MacroMARL; the ICRA'20 README commands (BASELINES.md §1.3): Box Pushing
+# Mac-Dec-MADDRQN has no script in MacroMARL; the ICRA'20 README commands (docs/baselines.md §1.3): Box Pushing
 # trace_len = train_freq = 15, batch 128, ε → 0.1, start_train 2 episodes, centralised exploration throughout,
 # 15K episodes on BP-10 (we keep 40K like every other BP learner); elsewhere the MacDec-Q values with
 # centralised exploration.
@@ -431,7 +431,7 @@ MACDEC_DDRQN: dict[str, dict[str, Any]] = {
     **{name: MACDEC_Q[name] for name in WAREHOUSE},
 }
 
-# AVF (BASELINES.md §1.7): the value learners' schedule with AVF's own optimiser, buffer and target settings:
+# AVF (docs/baselines.md §1.7): the value learners' schedule with AVF's own optimiser, buffer and target settings:
 # lr 5e-4, batch 32, 2,500 episodes, Polyak ω = 0.995 after every step; windows as the value learners.
 _AVF = dict(lr=5e-4, batch_size=32, buffer_episodes=2500, target_polyak=0.005)
 AVF: dict[str, dict[str, Any]] = {
@@ -442,7 +442,7 @@ AVF: dict[str, dict[str, Any]] = {
 }
 
 
-# MacroMARL's actor-critic scripts (experiments/*/mac_cac.sh, mac_iaicc.sh, mac_naive_iacc.sh; HYPERPARAMS.md):
+# MacroMARL's actor-critic scripts (experiments/*/mac_cac.sh, mac_iaicc.sh, mac_naive_iacc.sh; docs/hyperparameters.md):
 # on-policy, one critic and one actor step per round of n_env = train_freq episodes, hard target copy every
 # c_target_update_freq episodes, no gradient clipping, ε 1 → eps_end over eps_stable_at episodes from the start,
 # 10 evaluation episodes every eval_freq − eval_freq % train_freq episodes, both training and evaluation episodes

@@ -19,7 +19,7 @@ the termination mask: ``target = reward + discount · bootstrap_value``.
 * ``jert_view(slot)``: Mac-JERT, the steps where any agent's macro-action ended, left-packed.
 * ``cert_view(slot)``: Mac-CERT, per agent the steps where its macro-action ended.
 
-Mac-JERT/CERT reproduce MacroMARL's per-step running accumulators (BASELINES.md §1.0, §2):
+Mac-JERT/CERT reproduce MacroMARL's per-step running accumulators (docs/baselines.md §1.0, §2):
 a kept step's reward is ``Σ_{k<τ} γ^k r`` since the previous kept step, ``τ`` is the number of
 primitive steps since then, and the observations are the frozen ``obs_macro`` rows. As in the
 original, a step is kept only where ``mac_done`` is set (a terminal step where no

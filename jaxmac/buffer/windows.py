@@ -1,4 +1,4 @@
-"""Fixed-length windows of stored episodes: the originals' ``trace_len`` sampling (BASELINES.md §1.1).
+"""Fixed-length windows of stored episodes: the originals' ``trace_len`` sampling (docs/baselines.md §1.1).
 
 MacroMARL's value learners on Box Pushing store, per episode of ``T`` primitive steps, every window of
 ``L = trace_len`` consecutive step records, front-padded with ``L − 1`` empty records (so ``T + L − 1``

@@ -1,16 +1,16 @@
 """Networks: ToMacVF's temporal agent networks (D2, D3), ATPG (D4, D5), mixers (D6, D19), and the originals'
-DRQNs. See each submodule's docstring for shapes (conditional greedy actions live in ``jaxmac.targets``).
+DRQNs. See each submodule's docstring for shapes (conditional greedy actions live in ``jaxmac.targets``; masks,
+argmaxes and gathers over actions in ``jaxmac.ops``).
 
 Typical training-side use on a batch of episode slots (leaves ``[B, H, ...]``, rows ``T = H + 1``)::
 
     inputs, tau = slot_inputs(slots)                                   # NetInputs [B, T, ...], tau [B, T, n]
     q, _, _ = agent_net.apply(agent_params, inputs, initial_carry(agent_cfg, (B,)), tau)  # [B, T, n, A]
     weights, _ = mixer.apply(mixer_params, slots.decode_state(), inputs)                 # MixWeights [B, T]
-    q_tot = mix(weights, targets.gather_q(q, actions))                                      # [B, T]
+    q_tot = mix(weights, ops.gather_q(q, actions))                                          # [B, T]
 """
 
 from jaxmac.networks.agent import (
-    MASK_VALUE,
     AgentNetConfig,
     GRUTorso,
     QHead,
@@ -19,8 +19,6 @@ from jaxmac.networks.agent import (
     dummy_inputs,
     init_agent_params,
     initial_carry,
-    mask_unavailable,
-    masked_argmax,
 )
 from jaxmac.networks.atpg import (
     ATPG,
@@ -44,7 +42,6 @@ from jaxmac.networks.mixers import (
 
 __all__ = [
     "ATPG",
-    "MASK_VALUE",
     "MIXER_KINDS",
     "ATPGConfig",
     "ATPGOutput",
@@ -66,8 +63,6 @@ __all__ = [
     "initial_carry",
     "jert_inputs",
     "jert_sequence",
-    "mask_unavailable",
-    "masked_argmax",
     "mix",
     "slot_inputs",
     "take_rows",

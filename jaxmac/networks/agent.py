@@ -43,9 +43,8 @@ import numpy as np
 
 from jaxmac.encodings import EncodingConfig, sinusoid
 from jaxmac.networks.inputs import NetInputs, validate_inputs
+from jaxmac.ops import mask_unavailable
 
-MASK_VALUE = -1e9
-"""Q-value given to unavailable actions by ``mask_unavailable`` (finite, so sums never give NaN)."""
 
 
 def _positive_int(owner: str, name: str, v: Any) -> None:
@@ -266,13 +265,3 @@ def init_agent_params(config: AgentNetConfig, key: chex.PRNGKey):
     inputs = dummy_inputs(config.num_agents, config.obs_dim)
     tau = jnp.zeros((1, config.num_agents), jnp.int32)
     return TemporalAgentNet(config).init(key, inputs, initial_carry(config), tau)
-
-
-def mask_unavailable(q: chex.Array, avail: chex.Array) -> chex.Array:
-    """``q`` f32[..., A] with unavailable actions (``avail`` bool[..., A] False) set to ``MASK_VALUE``."""
-    return jnp.where(avail, q, jnp.asarray(MASK_VALUE, q.dtype))
-
-
-def masked_argmax(q: chex.Array, avail: chex.Array) -> chex.Array:
-    """Greedy available action: i32[...] from ``q`` f32[..., A] and ``avail`` bool[..., A]."""
-    return jnp.argmax(mask_unavailable(q, avail), axis=-1).astype(jnp.int32)

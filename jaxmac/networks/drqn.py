@@ -1,4 +1,4 @@
-"""The recurrent Q network of the MacroMARL baselines (BASELINES.md §1.0), one per agent or centralised.
+"""The recurrent Q network of the MacroMARL baselines (docs/baselines.md §1.0), one per agent or centralised.
 
     fc1(D→m0) –LReLU– fc2(m0→m0) –LReLU– GRU(m0→h) – fc3(h→m1) –LReLU– fc4(m1→out)
 

@@ -65,6 +65,7 @@ from flax import struct
 from jaxmac.networks.agent import _from_spec, _positive_int, dummy_inputs
 from jaxmac.networks.atpg import ATPG, ATPGConfig
 from jaxmac.networks.inputs import NetInputs
+from jaxmac.ops import gather_q, mask_unavailable
 
 MIXER_KINDS = ("atpg_qmix", "qmix", "vdn", "qplex", "atpg_qplex", "qtran", "atpg_qtran")
 ATPG_KINDS = ("atpg_qmix", "atpg_qplex", "atpg_qtran")
@@ -202,9 +203,6 @@ def mix_actions(weights: MixWeights, q_table: chex.Array, actions: chex.Array, a
     returns Q_jt(s, a), which does not read ``q_table``. Leading axes broadcast against the weights' as in ``mix``
     (e.g. candidates ``[C, B, T]``). Returns f32[broadcast leading axes].
     """
-    from jaxmac.networks.agent import mask_unavailable
-    from jaxmac.targets import gather_q
-
     if weights.kind == "qtran":
         return _qtran_joint_q(weights.qtran, actions)
     lead = jnp.broadcast_shapes(q_table.shape[:-2], actions.shape[:-1])
@@ -253,8 +251,6 @@ def qtran_penalties(weights: MixWeights, q_table: chex.Array, taken: chex.Array,
     Q_jt is held fixed (stop-gradient), as in QTRAN: these terms train the per-agent Q_i and V_jt, the TD loss
     trains Q_jt. Args: ``q_table`` f32[..., n, A], ``taken``/``greedy`` i32[..., n]. Returns (opt, nopt) f32[...].
     """
-    from jaxmac.targets import gather_q
-
     v = qtran_value(weights)
     q_jt = lambda a: jax.lax.stop_gradient(mix_actions(weights, q_table, a, None))  # noqa: E731
     opt = jnp.sum(gather_q(q_table, greedy), axis=-1) - q_jt(greedy) + v
