@@ -22,7 +22,8 @@ import os
 import numpy as np
 
 from jaxmac.plotting import mean_and_standard_error, save_figure, smooth
-from jaxmac.stats import CEILINGS, aggregate, compare_methods, load_sweep, welch_p, who_wins
+from jaxmac.scenarios import CEILINGS
+from jaxmac.stats import aggregate, compare_methods, load_sweep, welch_p, who_wins
 from jaxmac.sweep import EXPERIMENTS, PROTOCOLS
 
 REFERENCE = "tomacvf"

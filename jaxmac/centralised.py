@@ -16,11 +16,9 @@ from jaxmac.acting import joint_epsilon_greedy
 from jaxmac.buffer import windows
 from jaxmac.losses import masked_mean, td_mse
 from jaxmac.networks.drqn import DRQN
+from jaxmac.scenarios import SCENARIOS
 from jaxmac.targets import joint_action_count, joint_conditional_argmax, ravel_joint
 
-# joint macro-action spaces of the benchmark scenarios (for the error message of a too-large one)
-_SCENARIO_ENVS = ("boxpushing-6x6", "overcooked-A", "overcooked-B", "warehouse-A", "warehouse-C", "warehouse-D",
-                  "warehouse-E")
 
 
 def check_joint_space(env: MacroEnv, limit: int, algorithm: str) -> int:
@@ -29,7 +27,7 @@ def check_joint_space(env: MacroEnv, limit: int, algorithm: str) -> int:
     if size > limit:
         import envs_jax
 
-        sizes = {name: joint_action_count(envs_jax.make(name).spec.num_actions) for name in _SCENARIO_ENVS}
+        sizes = {name: joint_action_count(envs_jax.make(name).spec.num_actions) for name in SCENARIOS}
         fine = [f"{name} ({n})" for name, n in sizes.items() if n <= limit]
         raise ValueError(
             f"{algorithm}: {env.spec.name} has {size} joint macro-actions "

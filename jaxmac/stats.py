@@ -25,15 +25,8 @@ import re
 import numpy as np
 
 from jaxmac.plotting import read_eval_curves
+from jaxmac.scenarios import CEILINGS
 
-# The ceilings results are compared with: Box Pushing's optimal discounted returns (γ 0.98), Overcooked's scripted
-# discounted returns (γ 0.99), Warehouse's scripted returns (γ 1). See the README's environment table.
-CEILINGS = {
-    "boxpushing-6x6": 270.605, "boxpushing-8x8": 259.691, "boxpushing-10x10": 244.125,
-    "boxpushing-12x12": 229.475, "boxpushing-14x14": 215.686,
-    "overcooked-A": 164.3, "overcooked-B": 149.8, "overcooked-C": 149.8,
-    "warehouse-A": 533.0, "warehouse-B": 533.0, "warehouse-C": 801.0, "warehouse-D": 803.0, "warehouse-E": 1053.0,
-}
 FINAL_POINTS = 10  # the final return averages a run's last this many evaluations
 
 

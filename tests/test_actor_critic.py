@@ -23,7 +23,7 @@ from envs_jax.core import TimeStep
 from jaxmac import actor_critic as ac
 from jaxmac.algos import make_algorithm
 from jaxmac.algos.base import Progress, per_part_optimizer
-from jaxmac.algos.settings import SCENARIOS
+from jaxmac.scenarios import SCENARIOS
 from jaxmac.config import make_env, scenario_config
 from jaxmac.decentralised import init_agent_drqn
 from jaxmac.ops import MASK_VALUE

@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 from scipy import stats as sps
 
-from jaxmac.stats import (CEILINGS, aggregate, bootstrap_ci, compare_methods, final_returns, load_sweep, welch_p,
+from jaxmac.scenarios import CEILINGS
+from jaxmac.stats import (aggregate, bootstrap_ci, compare_methods, final_returns, load_sweep, welch_p,
                           who_wins)
 
 

@@ -17,6 +17,8 @@ from __future__ import annotations
 import dataclasses
 from typing import Any
 
+from jaxmac.scenarios import BOXPUSHING, OVERCOOKED, SCENARIOS, WAREHOUSE
+
 MIXERS = ("qmix", "vdn", "qplex")  # AVF's
 TOMACVF_MIXERS = ("qmix", "vdn", "qplex", "qtran")
 
@@ -316,10 +318,6 @@ class MacCACSettings(ActorCriticSettings):
 
 # --- per-scenario values (flat: shared TrainConfig fields and the block's fields together) -------------
 
-BOXPUSHING = tuple(f"boxpushing-{g}x{g}" for g in (6, 8, 10, 12, 14))
-OVERCOOKED = ("overcooked-A", "overcooked-B", "overcooked-C")
-WAREHOUSE = tuple(f"warehouse-{c}" for c in "ABCDE")
-SCENARIOS = BOXPUSHING + OVERCOOKED + WAREHOUSE
 
 _BP = dict(length_buckets=4, packing=True, batch_size=128, eps_end=0.1, eps_decay_episodes=4000, buffer_episodes=5000, n_step=1)
 _OC = dict(length_buckets=4, packing=True, lr=3e-4, rnn_size=32, n_step=5, eps_end=0.05, eps_decay_episodes=20_000,
