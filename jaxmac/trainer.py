@@ -35,7 +35,7 @@ import optax
 from flax import struct
 
 from envs_jax.core import MacroEnv
-from jaxmac.acting import epsilon_schedule
+from jaxmac.algos.acting import epsilon_schedule
 from jaxmac.algos.base import Algorithm, Progress, sample_episodes
 from jaxmac.buckets import SEED_AXIS, any_seed
 from jaxmac.buffer import ring as ring_lib

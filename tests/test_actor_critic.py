@@ -1,4 +1,4 @@
-"""The macro-action actor-critics (jaxmac.actor_critic, Mac-IAICC, Mac-NIACC, Mac-CAC) against plain-Python references
+"""The macro-action actor-critics (jaxmac.algos.families.actor_critic, Mac-IAICC, Mac-NIACC, Mac-CAC) against plain-Python references
 written here (tests/_ac_references.py): n-step macro returns rebuilt from raw per-step arrays with the original
 learners' rule, the Mac-CERT → Mac-JERT alignment, the ε-mixed policy, conditional and per-agent sampling, the
 critic-then-actor order, one full update of every learner with nets stepped one entry at a time, and config errors."""
@@ -20,12 +20,12 @@ from _learner_helpers import GAMMA, assert_frequencies, episode_slot, random_par
 from _value_references import stack
 
 from envs_jax.core import TimeStep
-from jaxmac import actor_critic as ac
+from jaxmac.algos.families import actor_critic as ac
 from jaxmac.algos import make_algorithm
 from jaxmac.algos.base import Progress, per_part_optimizer
 from jaxmac.scenarios import SCENARIOS
 from jaxmac.config import make_env, scenario_config
-from jaxmac.decentralised import init_agent_drqn
+from jaxmac.algos.families.decentralised import init_agent_drqn
 from jaxmac.ops import MASK_VALUE
 from jaxmac.networks.drqn import DRQN, AgentDRQN, AgentStateCritic, StateCritic
 

@@ -15,7 +15,7 @@ from _learner_helpers import episode_slot, random_params
 
 import envs_jax
 from envs_jax.wrappers import AutoReset
-from jaxmac import actor_critic as ac
+from jaxmac.algos.families import actor_critic as ac
 from jaxmac.algos import make_algorithm
 from jaxmac.algos.base import Progress
 from jaxmac.buckets import SEED_AXIS, any_seed, bucket_sizes, packed_row_sizes, run_bucketed

@@ -37,7 +37,7 @@ from jaxmac.networks import (
     timestep_inputs,
 )
 from jaxmac.ops import MASK_VALUE, gather_q, mask_unavailable, masked_argmax
-from jaxmac.targets import conditional_greedy
+from jaxmac.algos.targets import conditional_greedy
 
 N, O, A, S, B, T = 3, 5, 4, 6, 2, 10
 FAST = dict(xla_backend_optimization_level=0, xla_llvm_disable_expensive_passes=True)

@@ -7,7 +7,7 @@ Online and target parameters are independent random draws, so online/target mix-
 
 The references rebuild everything from the *raw* per-step arrays of each episode (``mac_done``, ``mac``,
 ``reward``, ``terminated``/``truncated``, ``avail``, observations, states) with explicit loops over episodes,
-steps and agents, without ``jaxmac.buffer.views``, ``slot_inputs``/``jert_sequence`` or ``jaxmac.targets``:
+steps and agents, without ``jaxmac.buffer.views``, ``slot_inputs``/``jert_sequence`` or ``jaxmac.algos.targets``:
 
 * the network inputs of every row (observation, time, the macro-action in force before the row and its
   progress, the progress τ of the action each agent executes from the row: 0 where it is free);

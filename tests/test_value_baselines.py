@@ -12,7 +12,8 @@ import pytest
 from _buffer_fixtures import config_for, synthetic_rollout
 from _value_references import brute_force_conditional_argmax, stack, step_by_step
 
-from jaxmac import centralised, targets
+from jaxmac.algos import targets
+from jaxmac.algos.families import centralised
 from jaxmac.buffer import episode, windows
 from jaxmac.buffer import ring as ring_lib
 from jaxmac.networks.drqn import DRQN

@@ -13,7 +13,8 @@ from _learner_helpers import episode_slot as learner_episode_slot
 from _value_references import available_argmax, brute_force_conditional_argmax, stack
 
 import envs_jax
-from jaxmac import centralised, decentralised, trainer
+from jaxmac import trainer
+from jaxmac.algos.families import centralised, decentralised
 from jaxmac.algos import REGISTRY, make_algorithm
 from jaxmac.algos.base import Progress
 from jaxmac.buffer import views, windows

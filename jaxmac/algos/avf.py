@@ -26,11 +26,11 @@ from envs_jax.core import MacroEnv
 from jaxmac.algos.base import Algorithm, default_optimizer
 from jaxmac.buffer import windows
 from jaxmac.config import TrainConfig
-from jaxmac.decentralised import agents_step, agents_values, init_agent_drqn, sequence_q
+from jaxmac.algos.families.decentralised import agents_step, agents_values, init_agent_drqn, sequence_q
 from jaxmac.losses import masked_mean, td_mse
 from jaxmac.networks.drqn import AgentDRQN
 from jaxmac.networks.mixers import Mixer, MixerConfig, init_mixer_params, mix_actions
-from jaxmac.targets import conditional_greedy
+from jaxmac.algos.targets import conditional_greedy
 
 
 def make_avf(config: TrainConfig, env: MacroEnv) -> Algorithm:

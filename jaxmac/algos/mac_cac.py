@@ -5,7 +5,7 @@ outputs logits over the joint macro-action space |M_1|·…·|M_n|. Acting sampl
 only joint actions whose busy agents keep their running macro-action (and whose free agents pick available ones)
 can be drawn, and only the free agents' components are executed. Training uses the log-probability of the
 executed joint action under the *unconditioned* ``π_ε``, as the original does. The joint history critic V(h^J),
-its n-step macro returns and the critic-then-actor update are Mac-NIACC's (``jaxmac.actor_critic``)::
+its n-step macro returns and the critic-then-actor update are Mac-NIACC's (``jaxmac.algos.families.actor_critic``)::
 
     A_j = G_j − V(h^J_j),   L_actor = −Σ_j γ^{t_j} log π_ε(m^J_j | h^J_j) A_j / Σ_j 1
 """
@@ -16,13 +16,13 @@ import jax
 import jax.numpy as jnp
 
 from envs_jax.core import MacroEnv
-from jaxmac import actor_critic as ac
-from jaxmac import centralised
+from jaxmac.algos.families import actor_critic as ac
+from jaxmac.algos.families import centralised
 from jaxmac.algos.base import Algorithm, clipped_adam, on_policy_source, per_part_optimizer, store_length
 from jaxmac.config import TrainConfig
 from jaxmac.losses import masked_mean
 from jaxmac.networks.drqn import DRQN
-from jaxmac.targets import ravel_joint
+from jaxmac.algos.targets import ravel_joint
 
 
 def make_mac_cac(config: TrainConfig, env: MacroEnv) -> Algorithm:

@@ -2,7 +2,7 @@
 critics.
 
 Each agent i has an actor π_i(m_i | h_i) over its own Mac-CERT history and its own critic V_i, trained on its own
-macro-actions with n-step macro returns (``jaxmac.actor_critic``)::
+macro-actions with n-step macro returns (``jaxmac.algos.families.actor_critic``)::
 
     G_k = R_{i,k} + γ^{τ_{i,k}} V_i⁻(after macro-action k)   (n = 1; more steps by ``n_step``),   A_k = G_k − V_i(k)
 
@@ -22,7 +22,7 @@ import jax
 import jax.numpy as jnp
 
 from envs_jax.core import MacroEnv
-from jaxmac import actor_critic as ac
+from jaxmac.algos.families import actor_critic as ac
 from jaxmac.algos.base import Algorithm, clipped_adam, on_policy_source, per_part_optimizer, store_length
 from jaxmac.config import TrainConfig
 

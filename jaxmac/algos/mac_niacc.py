@@ -8,7 +8,7 @@ macro-action k takes the *joint* advantage of the joint entry at which it ended:
 which spans only the last joint step of its macro-action (hence "naive"; Mac-IAICC's individual critics score the
 whole macro-action). ``critic='history'``: V's GRU reads the joint macro-observations; ``critic='state'`` (the Box
 Pushing scripts' ``NaiveMacIASC``): V(s) an MLP of the state at the joint decision point. Actors, acting and the
-on-policy critic-then-actor update as Mac-IAICC (``jaxmac.actor_critic``).
+on-policy critic-then-actor update as Mac-IAICC (``jaxmac.algos.families.actor_critic``).
 """
 
 from __future__ import annotations
@@ -17,8 +17,8 @@ import jax
 import jax.numpy as jnp
 
 from envs_jax.core import MacroEnv
-from jaxmac import actor_critic as ac
-from jaxmac import centralised
+from jaxmac.algos.families import actor_critic as ac
+from jaxmac.algos.families import centralised
 from jaxmac.algos.base import Algorithm, clipped_adam, on_policy_source, per_part_optimizer, store_length
 from jaxmac.config import TrainConfig
 

@@ -9,7 +9,7 @@ macro-action, valued by the target net::
 
     y = R^J + γ^{τ^J} Q⁻(h^J′, argmax_{m′ | m_busy} Q(h^J′, m′)) · (1 − terminal),   L = mean (Q(h^J, m^J) − y)²
 
-Acting is centralised (``jaxmac.centralised.controller_step``); without ``h_explore`` the behaviour policy
+Acting is centralised (``jaxmac.algos.families.centralised.controller_step``); without ``h_explore`` the behaviour policy
 values each decision from a zero state (as the original runner), greedy evaluation keeps the history.
 """
 
@@ -18,7 +18,7 @@ from __future__ import annotations
 import jax.numpy as jnp
 
 from envs_jax.core import MacroEnv
-from jaxmac import centralised
+from jaxmac.algos.families import centralised
 from jaxmac.algos.base import Algorithm, default_optimizer
 from jaxmac.buffer import windows
 from jaxmac.config import TrainConfig

@@ -2,8 +2,8 @@
 
 Two networks trained together on the same windows:
 
-* the Mac-Cen-DDRQN net (``jaxmac.centralised``) on Mac-JERT with the conditional double-Q target;
-* one DRQN per agent (``jaxmac.decentralised``) on its Mac-CERT entries with the hysteretic target
+* the Mac-Cen-DDRQN net (``jaxmac.algos.families.centralised``) on Mac-JERT with the conditional double-Q target;
+* one DRQN per agent (``jaxmac.algos.families.decentralised``) on its Mac-CERT entries with the hysteretic target
   ``y_i = R_i + γ^{τ_i} Q_i⁻(h′_i, [argmax_{m′ | m_busy} Q_cen(h^J′, m′)]_i)``: the next action of agent i is its
   component of the centralised conditional argmax at the joint decision point that follows its termination
   (``views.cert_to_jert_index`` aligns agent i's entry with that joint entry).
@@ -18,7 +18,7 @@ import jax
 import jax.numpy as jnp
 
 from envs_jax.core import MacroEnv
-from jaxmac import centralised, decentralised
+from jaxmac.algos.families import centralised, decentralised
 from jaxmac.algos.base import Algorithm, default_optimizer
 from jaxmac.buffer import views, windows
 from jaxmac.config import TrainConfig

@@ -2,7 +2,7 @@
 
 Each agent's DRQN reads its own frozen macro-observations at its own decision points and is trained on its
 Mac-CERT transitions (reward accumulated over its own macro-action, γ^τ bootstrap) with hysteretic double-Q
-(``jaxmac.decentralised``); acting is decentralised ε-greedy. The building block of Mac-Dec-MADDRQN.
+(``jaxmac.algos.families.decentralised``); acting is decentralised ε-greedy. The building block of Mac-Dec-MADDRQN.
 """
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ from __future__ import annotations
 import jax.numpy as jnp
 
 from envs_jax.core import MacroEnv
-from jaxmac import decentralised
+from jaxmac.algos.families import decentralised
 from jaxmac.algos.base import Algorithm, default_optimizer
 from jaxmac.buffer import windows
 from jaxmac.config import TrainConfig

@@ -1,5 +1,5 @@
 """Networks: ToMacVF's temporal agent networks (D2, D3), ATPG (D4, D5), mixers (D6, D19), and the originals'
-DRQNs. See each submodule's docstring for shapes (conditional greedy actions live in ``jaxmac.targets``; masks,
+DRQNs. See each submodule's docstring for shapes (conditional greedy actions live in ``jaxmac.algos.targets``; masks,
 argmaxes and gathers over actions in ``jaxmac.ops``).
 
 Typical training-side use on a batch of episode slots (leaves ``[B, H, ...]``, rows ``T = H + 1``)::

@@ -1,7 +1,7 @@
 """Pieces of the centralised joint-action learners (Mac-Cen-DDRQN, the centralised half of Mac-Dec-MADDRQN).
 
 A centralised recurrent Q reads the concatenation of every agent's frozen macro-observation and outputs one
-value per joint macro-action (|M_1|·…·|M_n|, row-major as in ``jaxmac.targets``); it is trained on Mac-JERT
+value per joint macro-action (|M_1|·…·|M_n|, row-major as in ``jaxmac.algos.targets``); it is trained on Mac-JERT
 windows with the conditional double-Q target (docs/baselines.md §1.2) and acts as a centralised controller.
 """
 
@@ -12,12 +12,12 @@ import jax
 import jax.numpy as jnp
 
 from envs_jax.core import MacroEnv
-from jaxmac.acting import joint_epsilon_greedy
+from jaxmac.algos.acting import joint_epsilon_greedy
 from jaxmac.buffer import windows
 from jaxmac.losses import masked_mean, td_mse
 from jaxmac.networks.drqn import DRQN
 from jaxmac.scenarios import SCENARIOS
-from jaxmac.targets import joint_action_count, joint_conditional_argmax, ravel_joint
+from jaxmac.algos.targets import joint_action_count, joint_conditional_argmax, ravel_joint
 
 
 

@@ -16,7 +16,7 @@ import chex
 import jax
 import jax.numpy as jnp
 
-from jaxmac.acting import epsilon_greedy
+from jaxmac.algos.acting import epsilon_greedy
 from jaxmac.buffer import windows
 from jaxmac.losses import masked_mean, td_mse
 from jaxmac.networks.drqn import AgentDRQN

@@ -31,17 +31,17 @@ import numpy as np
 import optax
 from flax import struct
 
-from jaxmac.acting import epsilon_schedule
+from jaxmac.algos.acting import epsilon_schedule
 from jaxmac.buckets import length_bucketed
 from jaxmac.buffer import views, windows
 from jaxmac.buffer.episode import EpisodeSlot
-from jaxmac.centralised import joint_obs
-from jaxmac.decentralised import init_agent_drqn
-from jaxmac.decentralised import sequence_q as decentralised_sequence
+from jaxmac.algos.families.centralised import joint_obs
+from jaxmac.algos.families.decentralised import init_agent_drqn
+from jaxmac.algos.families.decentralised import sequence_q as decentralised_sequence
 from jaxmac.losses import masked_mean, td_mse
 from jaxmac.ops import MASK_VALUE, gather_q, masked_argmax
 from jaxmac.networks.drqn import DRQN, AgentDRQN, AgentStateCritic, StateCritic
-from jaxmac.targets import joint_mask, unravel_joint
+from jaxmac.algos.targets import joint_mask, unravel_joint
 
 
 def real_action_mask(action_counts: Sequence[int], width: int) -> np.ndarray:
