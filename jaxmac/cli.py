@@ -86,10 +86,11 @@ def cmd_train(args) -> int:
             raise ValueError(f"--resume continues the run as it was configured; {', '.join(ignored)} cannot change it "
                              "(only --episodes, to train it further, and --set for a run that diverged)")
         if is_worker_run(args.resume):
-            summary = resume_workers(args.resume, progress=not args.no_progress, episodes=args.episodes)
+            summary = resume_workers(args.resume, progress=not args.no_progress, episodes=args.episodes,
+                                     checkpoint_seconds=args.checkpoint_every)
         else:
             summary = resume_run(args.resume, progress=not args.no_progress, episodes=args.episodes,
-                                 assignments=args.set, devices=devices)
+                                 assignments=args.set, devices=devices, checkpoint_seconds=args.checkpoint_every)
         out = args.resume
     else:
         if args.preset is not None:
@@ -117,10 +118,11 @@ def cmd_train(args) -> int:
         offset, seeds = (0, 1) if args.seeds is None else args.seeds
         workers = 1 if args.workers is None else args.workers
         if workers != 1:  # train_workers validates the count
-            summary = train_workers(config, seeds, out, workers, progress=not args.no_progress, seed_offset=offset)
+            summary = train_workers(config, seeds, out, workers, progress=not args.no_progress, seed_offset=offset,
+                                    checkpoint_seconds=args.checkpoint_every)
         else:
             summary = train_run(config, seeds, out, seed_offset=offset, progress=not args.no_progress,
-                                devices=devices)
+                                devices=devices, checkpoint_seconds=args.checkpoint_every)
     if summary is not None:
         print(f"run folder: {out}")
         print(f"final greedy return ({summary['scenario']}, gamma={summary['discount']}): "
@@ -187,7 +189,7 @@ def cmd_sweep(args) -> int:
               + (f"; {unknown} cells not measured" if unknown else ""))
         return 0
     enable_compilation_cache()
-    run_sweep(cells, out, devices=devices, progress=not args.no_progress)
+    run_sweep(cells, out, devices=devices, progress=not args.no_progress, checkpoint_seconds=args.checkpoint_every)
     return 0
 
 
@@ -229,6 +231,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--devices", type=int, default=None,
                    help="devices to shard the seeds over, in one process (jax.sharding; on a CPU the host is split "
                         "into that many devices; default 1); the seeds must be a multiple of it")
+    p.add_argument("--checkpoint-every", type=float, default=120.0, metavar="SECONDS",
+                   help="save a checkpoint (and the metrics rows it covers) at most every SECONDS of training "
+                        "(default 120; 0 = after every chunk, for a flaky machine)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_train)
 
@@ -249,6 +254,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="list the cells, their status and estimated cost, run nothing")
     p.add_argument("--rates", default=os.path.join("experiments", "protocol_rates.json"),
                    help="with --dry-run: measured rates (experiments/calibrate_protocol.py) to estimate cell costs")
+    p.add_argument("--checkpoint-every", type=float, default=120.0, metavar="SECONDS",
+                   help="checkpoint each cell at most every SECONDS of training (as train; default 120)")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
     p.set_defaults(func=cmd_sweep)
 
@@ -259,15 +266,34 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def os_error_line(err: OSError) -> str:
+    """One line for an expected OSError (a full disk, an unwritable path): what failed, on which file."""
+    message = str(err)
+    if type(err) is OSError or not message.startswith("cannot"):  # a plain OSError: "[Errno 28] ..." made readable
+        what = err.strerror or message
+        where = f" ({err.filename})" if err.filename else ""
+        message = f"{what}{where}"
+    return " ".join(message.split())
+
+
 def main(argv: list[str] | None = None) -> int:
+    """The CLI; an expected failure (a refused command, a broken file, a full disk) is one line on stderr and exit
+    status 2, never a traceback."""
     args = build_parser().parse_args(argv)
     if any(v is not None and v < 1 for v in (getattr(args, "episodes", None), getattr(args, "devices", None))):
         print("jaxmac: --episodes and --devices must be >= 1", file=sys.stderr)
         return 2
+    every = getattr(args, "checkpoint_every", None)
+    if every is not None and not every >= 0:
+        print(f"jaxmac: --checkpoint-every {every}: give a number of seconds >= 0", file=sys.stderr)
+        return 2
     try:
         return args.func(args)
     except (ValueError, RuntimeError) as err:
-        print(f"jaxmac: {err}", file=sys.stderr)
+        print(f"jaxmac: {' '.join(str(err).split())}", file=sys.stderr)
+        return 2
+    except OSError as err:
+        print(f"jaxmac: {os_error_line(err)}", file=sys.stderr)
         return 2
 
 

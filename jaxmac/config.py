@@ -77,6 +77,7 @@ class TrainConfig:
             object.__setattr__(self, "algo", settings_cls())
         elif not isinstance(self.algo, settings_cls):
             raise ValueError(f"algo={self.algo!r} must be a {settings_cls.__name__} for algorithm {self.algorithm!r}")
+        self._check_finite()
         if self.collection not in COLLECTIONS:
             raise ValueError(f"collection={self.collection!r} is not valid; choices: {list(COLLECTIONS)}")
         if self.scenario not in SCENARIOS:
@@ -114,6 +115,15 @@ class TrainConfig:
         if not 0.0 <= self.target_polyak < 1.0:
             raise ValueError(f"target_polyak={self.target_polyak!r} must be in [0, 1) (0 = hard copies)")
         self._check_target_period()
+
+    def _check_finite(self) -> None:
+        """Every real-valued setting, shared or of the algorithm's block, is a finite number: a NaN or an infinity
+        passes every range check (``nan < 0`` is false) and would surface only as a diverged run."""
+        for owner, hints in ((self, _shared_hints()), (self.algo, typing.get_type_hints(type(self.algo)))):
+            for name, kind in hints.items():
+                value = getattr(owner, name, None)
+                if kind is float and isinstance(value, (int, float)) and not math.isfinite(value):
+                    raise ValueError(f"{name}={value!r} must be a finite number")
 
     def _check_target_period(self) -> None:
         """A hard copy every ``target_update_episodes`` episodes lands after a round's gradient steps; a period of

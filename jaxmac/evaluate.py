@@ -42,6 +42,9 @@ def greedy_episode_frames(out_dir: str, seed_index: int = 0, key: int = 0) -> tu
     from jaxmac.run import load_run
 
     trainer, state, chunks, meta = load_run(out_dir)
+    if chunks == 0:
+        raise ValueError(f"{out_dir} has no checkpoint (none saved yet, or none that restores): there is no trained "
+                         f"policy to show; train it further first (jaxmac train --resume {out_dir})")
     if not 0 <= seed_index < meta["seeds"]:
         raise ValueError(f"seed_index={seed_index} is out of range; the run has seeds 0..{meta['seeds'] - 1}")
     env, algo = trainer.env, trainer.algorithm

@@ -11,8 +11,8 @@ starts the others, one after another in this process, each with its seeds vmappe
 (``…/seeds4-8``) that the statistics merge with the first ones.
 
 Several sweep processes may work through one folder at once (e.g. one per core: ``taskset -c 0 jaxmac sweep bp &
-taskset -c 1 jaxmac sweep bp``): each takes a cell by creating its lock file, and leaves cells another live process
-holds.
+taskset -c 1 jaxmac sweep bp``): each takes a cell by locking its run folder (``jaxmac.run.lock_run_folder``: an OS
+lock, released when its process ends, however it ends), and leaves cells another live process holds.
 
 Folder layout: ``OUT/<scenario>/<method>/seeds<A>-<B>/`` (a run folder).
 """
@@ -24,6 +24,10 @@ import os
 from typing import Any
 
 from jaxmac.config import TrainConfig, scenario_config
+from jaxmac.scenarios import BOXPUSHING, FAMILIES, OVERCOOKED, WAREHOUSE, family
+
+# the lock file of a cell: its run folder's (``jaxmac.run.LOCK_FILE``)
+LOCK = "run.lock"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -119,13 +123,10 @@ MIXERS = (dataclasses.replace(TOMACVF, label="ToMacVF_QMIX"),) + tuple(
     Method(f"tomacvf-{m}", "tomacvf", (("mixer", m),), f"ToMacVF_{label}")
     for m, label in (("vdn", "VDN"), ("qplex", "QPLEX"), ("qtran", "Qtran")))
 
-BOX_PUSHING = tuple(f"boxpushing-{g}x{g}" for g in (6, 8, 10, 12, 14))
-OVERCOOKED = ("overcooked-A", "overcooked-B", "overcooked-C")
-WAREHOUSE = tuple(f"warehouse-{v}" for v in "ABCDE")
 
 # experiment -> (methods, scenarios), as the paper's figures group them
 EXPERIMENTS: dict[str, tuple[tuple[Method, ...], tuple[str, ...]]] = {
-    "bp": ((TOMACVF, TOMACVF_TUNED) + BASELINES, BOX_PUSHING),
+    "bp": ((TOMACVF, TOMACVF_TUNED) + BASELINES, BOXPUSHING),
     # the paper leaves the two DDRQNs out of Warehouse
     "warehouse": ((TOMACVF, TOMACVF_PAPER) + tuple(m for m in BASELINES if not m.name.endswith("ddrqn")), WAREHOUSE),
     "overcooked": ((TOMACVF, TOMACVF_PAPER) + BASELINES, OVERCOOKED),
@@ -140,11 +141,6 @@ def method_by_name(name: str) -> Method:
     if name not in methods:
         raise ValueError(f"unknown method {name!r}; valid methods: {sorted(methods)}")
     return methods[name]
-
-
-def family(scenario: str) -> str:
-    """``boxpushing``, ``overcooked`` or ``warehouse``."""
-    return scenario.rsplit("-", 1)[0]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -232,14 +228,13 @@ def cell_status(out_dir: str, cell: Cell) -> str:
     """'done' (a summary), 'interrupted' (a run folder without one) or 'new'. A folder that holds a run of another
     configuration (other settings, budget or seeds) is refused, naming what differs: cells are shared between
     experiments by path, so a path must always mean the same run."""
-    import json
+    from jaxmac.run import read_meta
 
     path = os.path.join(out_dir, cell.path)
     config_path = os.path.join(path, "config.json")
     if not os.path.exists(config_path):
         return "new"
-    with open(config_path) as f:
-        meta = json.load(f)
+    meta = read_meta(path)
     held = TrainConfig.from_dict(meta["config"]).flat_dict()
     wanted = cell.config().flat_dict()
     differ = [f"{k}: {held.get(k)!r} there, {v!r} here" for k, v in wanted.items() if held.get(k) != v]
@@ -269,7 +264,7 @@ def estimate_seconds(cell: Cell, rates: dict[str, dict]) -> tuple[float, str] | 
     key = f"{cell.method.name}@{cell.scenario}"
     if key not in rates:
         fam = family(cell.scenario)
-        order = BOX_PUSHING if fam == "boxpushing" else OVERCOOKED if fam == "overcooked" else WAREHOUSE
+        order = FAMILIES[fam]
         here = order.index(cell.scenario) if cell.scenario in order else 0
         measured = [s for s in order if f"{cell.method.name}@{s}" in rates]
         if not measured:
@@ -278,7 +273,8 @@ def estimate_seconds(cell: Cell, rates: dict[str, dict]) -> tuple[float, str] | 
     return cell.seeds * cell.episodes / rates[key]["episodes_per_s"], key
 
 
-def run_sweep(cells: list[Cell], out_dir: str, devices: int = 1, progress: bool = True, log=print) -> dict[str, str]:
+def run_sweep(cells: list[Cell], out_dir: str, devices: int = 1, progress: bool = True, log=print,
+              checkpoint_seconds: float = 120.0) -> dict[str, str]:
     """Run every cell not done yet (resume the interrupted ones); returns {cell path: what was done}."""
     import jax
 
@@ -292,63 +288,38 @@ def run_sweep(cells: list[Cell], out_dir: str, devices: int = 1, progress: bool 
             log(f"[{k + 1}/{len(cells)}] {cell.path}: done")
             done[cell.path] = "skipped"
             continue
-        if not claim_cell(path):
+        lock = claim_cell(path)
+        if not lock:
             log(f"[{k + 1}/{len(cells)}] {cell.path}: being trained by another sweep process")
             done[cell.path] = "busy"
             continue
-        log(f"[{k + 1}/{len(cells)}] {cell.path}: {status}")
         try:
+            status = cell_status(out_dir, cell)  # again, ours now: another process may have finished it meanwhile
+            if status == "done":
+                log(f"[{k + 1}/{len(cells)}] {cell.path}: done")
+                done[cell.path] = "skipped"
+                continue
+            log(f"[{k + 1}/{len(cells)}] {cell.path}: {status}")
             if status == "interrupted":
-                resume_run(path, progress=progress, devices=devices)
+                resume_run(path, progress=progress, devices=devices, checkpoint_seconds=checkpoint_seconds)
                 done[cell.path] = "resumed"
             else:
                 train_run(cell.config(), cell.seeds, path, seed_offset=cell.first_seed, progress=progress,
-                          devices=devices)
+                          devices=devices, checkpoint_seconds=checkpoint_seconds)
                 done[cell.path] = "trained"
         finally:
-            os.remove(os.path.join(path, LOCK))
+            lock.release()
         jax.clear_caches()  # the next cell compiles its own program
     return done
 
 
-LOCK = "sweep.lock"
+def claim_cell(path: str):
+    """Take the cell folder ``path`` for this process, so that several sweep processes — one per core, or per host on
+    a shared disk that supports ``flock`` — can work through one sweep folder without training a cell twice: the
+    run folder's own lock (``jaxmac.run.try_lock_run_folder``), which the train or resume of the cell takes again.
+    Returns the lock (release it when the cell is done), or None if another live process holds the cell. The OS
+    releases the lock of a process that ends, however it ends, so a killed process's cell is taken over; a lock
+    file alone (a dead process's, one naming a reused PID, an empty one left by a full disk) never blocks."""
+    from jaxmac.run import try_lock_run_folder
 
-
-def claim_cell(path: str) -> bool:
-    """Take the cell folder ``path`` for this process (a lock file holding our host and process id), so that
-    several sweep processes — one per core, or per host on a shared disk — can work through one sweep folder
-    without training a cell twice. A lock left by a process of this host that no longer runs (killed) is taken
-    over; False if a live process holds it."""
-    import json
-    import socket
-
-    os.makedirs(path, exist_ok=True)
-    lock = os.path.join(path, LOCK)
-    me = {"host": socket.gethostname(), "pid": os.getpid()}
-    for _ in range(2):
-        try:
-            fd = os.open(lock, os.O_CREAT | os.O_EXCL | os.O_WRONLY)
-        except FileExistsError:
-            try:
-                with open(lock) as f:
-                    holder = json.load(f)
-            except (OSError, ValueError):  # being written, or removed meanwhile: treat as held
-                return False
-            if holder.get("host") != me["host"] or _alive(int(holder.get("pid", -1))):
-                return False
-            os.remove(lock)  # stale: its process is gone
-            continue
-        with os.fdopen(fd, "w") as f:
-            json.dump(me, f)
-        return True
-    return False
-
-
-def _alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True
-    return pid > 0
+    return try_lock_run_folder(path, "sweep")

@@ -17,7 +17,8 @@ import time
 from typing import Any
 
 from jaxmac.config import TrainConfig
-from jaxmac.run import extend_budget, write_json_atomic
+from jaxmac.run import (_extended, check_new_run, extend_budget, lock_run_folder, read_meta, refuse_run_files,
+                        write_json_atomic)
 
 
 def split_seeds(seeds: int, workers: int) -> list[tuple[int, int]]:
@@ -38,49 +39,56 @@ def _worker_dirs(out_dir: str, workers: int) -> list[str]:
 
 
 def train_workers(config: TrainConfig, seeds: int, out_dir: str, workers: int, progress: bool = True,
-                  seed_offset: int = 0) -> dict:
+                  seed_offset: int = 0, checkpoint_seconds: float = 120.0) -> dict:
     """Train ``seeds`` seeds (from ``seed_offset``) in ``workers`` processes and merge the results into
-    ``out_dir``."""
-    if os.path.exists(os.path.join(out_dir, "config.json")):
-        raise ValueError(f"{out_dir} already holds a run; use --resume {out_dir} or another --out")
-    os.makedirs(out_dir, exist_ok=True)
+    ``out_dir`` (locked by this process meanwhile; each worker locks its own folder)."""
     shares = [(seed_offset + offset, count) for offset, count in split_seeds(seeds, workers)]
-    write_json_atomic(os.path.join(out_dir, "config.json"),
-                      {"config": config.to_dict(), "seeds": seeds, "seed_offset": seed_offset, "workers": workers,
-                       "shares": shares})
-    jobs = []
-    for d, (offset, count) in zip(_worker_dirs(out_dir, workers), shares):
-        os.makedirs(d, exist_ok=True)
-        write_json_atomic(os.path.join(d, "job.json"), {"config": config.to_dict(), "seeds": count, "seed_offset": offset})
-        jobs.append(d)
-    return _run_and_merge(out_dir, jobs, resume=False, progress=progress, total_episodes=config.episodes * seeds)
+    check_new_run(config, seeds)  # budget and memory (the workers share this machine), before anything is written
+    with lock_run_folder(out_dir, "train --workers"):
+        refuse_run_files(out_dir)
+        write_json_atomic(os.path.join(out_dir, "config.json"),
+                          {"config": config.to_dict(), "seeds": seeds, "seed_offset": seed_offset, "workers": workers,
+                           "shares": shares})
+        jobs = []
+        for d, (offset, count) in zip(_worker_dirs(out_dir, workers), shares):
+            os.makedirs(d, exist_ok=True)
+            write_json_atomic(os.path.join(d, "job.json"),
+                              {"config": config.to_dict(), "seeds": count, "seed_offset": offset})
+            jobs.append(d)
+        return _run_and_merge(out_dir, jobs, resume=False, progress=progress, total_episodes=config.episodes * seeds,
+                              checkpoint_seconds=checkpoint_seconds)
 
 
-def resume_workers(out_dir: str, progress: bool = True, episodes: int | None = None) -> dict:
-    """Continue a worker run; ``episodes`` raises its budget first (see ``jaxmac.run.extend_budget``)."""
-    if episodes is not None:
-        extend_budget(out_dir, episodes)
-    with open(os.path.join(out_dir, "config.json")) as f:
-        meta = json.load(f)
-    jobs = _worker_dirs(out_dir, meta["workers"])
-    if episodes is not None:
-        for d in jobs:
-            if os.path.exists(os.path.join(d, "config.json")):
-                extend_budget(d, episodes)
-            job_path = os.path.join(d, "job.json")
-            with open(job_path) as f:
-                job = json.load(f)
-            write_json_atomic(job_path, dict(job, config=meta["config"]))
-    return _run_and_merge(out_dir, jobs, resume=True, progress=progress,
-                          total_episodes=meta["config"]["episodes"] * meta["seeds"])
+def resume_workers(out_dir: str, progress: bool = True, episodes: int | None = None,
+                   checkpoint_seconds: float = 120.0) -> dict:
+    """Continue a worker run; ``episodes`` raises its budget first (see ``jaxmac.run.extend_budget``), after every
+    folder's budget was checked."""
+    with lock_run_folder(out_dir, "train --resume --workers"):
+        meta = read_meta(out_dir)
+        jobs = _worker_dirs(out_dir, meta["workers"])
+        if episodes is not None:
+            extended = _extended(out_dir, meta, episodes)
+            for d in jobs:  # every budget checked before any is written
+                if os.path.exists(os.path.join(d, "config.json")):
+                    _extended(d, read_meta(d), episodes)
+            write_json_atomic(os.path.join(out_dir, "config.json"), extended)
+            meta = extended
+            for d in jobs:
+                if os.path.exists(os.path.join(d, "config.json")):
+                    extend_budget(d, episodes)
+                job_path = os.path.join(d, "job.json")
+                with open(job_path) as f:
+                    job = json.load(f)
+                write_json_atomic(job_path, dict(job, config=meta["config"]))
+        return _run_and_merge(out_dir, jobs, resume=True, progress=progress,
+                              total_episodes=meta["config"]["episodes"] * meta["seeds"],
+                              checkpoint_seconds=checkpoint_seconds)
 
 
 def is_worker_run(out_dir: str) -> bool:
-    path = os.path.join(out_dir, "config.json")
-    if not os.path.exists(path):
+    if not os.path.exists(os.path.join(out_dir, "config.json")):
         return False
-    with open(path) as f:
-        return "workers" in json.load(f)
+    return "workers" in read_meta(out_dir)
 
 
 def _episodes_done(job_dir: str) -> int:
@@ -104,7 +112,8 @@ def _finished(job_dir: str) -> bool:
         return json.load(f)["episodes"] >= json.load(g)["config"]["episodes"]
 
 
-def _run_and_merge(out_dir: str, jobs: list[str], resume: bool, progress: bool, total_episodes: int) -> dict:
+def _run_and_merge(out_dir: str, jobs: list[str], resume: bool, progress: bool, total_episodes: int,
+                   checkpoint_seconds: float = 120.0) -> dict:
     from tqdm import tqdm
 
     start = time.perf_counter()
@@ -112,7 +121,8 @@ def _run_and_merge(out_dir: str, jobs: list[str], resume: bool, progress: bool, 
     for d in jobs:
         if _finished(d):
             continue  # this worker had finished before the interruption
-        cmd = [sys.executable, "-m", "jaxmac.workers", d] + (["--resume"] if resume else [])
+        cmd = [sys.executable, "-m", "jaxmac.workers", d, "--checkpoint-every", repr(float(checkpoint_seconds))] + (
+            ["--resume"] if resume else [])
         log = open(os.path.join(d, "worker.log"), "a")
         procs.append((subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT), log, d))
     bar = tqdm(total=total_episodes, unit="ep", desc=f"{len(jobs)} workers", disable=not progress,
@@ -169,17 +179,19 @@ def merge(out_dir: str, jobs: list[str], wall_seconds: float) -> dict[str, Any]:
 
 
 def _main(argv: list[str]) -> int:
-    """Worker entry point: ``python -m jaxmac.workers JOB_DIR [--resume]``."""
+    """Worker entry point: ``python -m jaxmac.workers JOB_DIR [--checkpoint-every SECONDS] [--resume]``."""
     from jaxmac.run import enable_compilation_cache, resume_run, train_run
 
     enable_compilation_cache()
     job_dir = argv[0]
+    seconds = float(argv[argv.index("--checkpoint-every") + 1]) if "--checkpoint-every" in argv else 120.0
     if "--resume" in argv and os.path.exists(os.path.join(job_dir, "config.json")):
-        resume_run(job_dir, progress=False)
+        resume_run(job_dir, progress=False, checkpoint_seconds=seconds)
         return 0
     with open(os.path.join(job_dir, "job.json")) as f:
         job = json.load(f)
-    train_run(TrainConfig.from_dict(job["config"]), job["seeds"], job_dir, seed_offset=job["seed_offset"], progress=False)
+    train_run(TrainConfig.from_dict(job["config"]), job["seeds"], job_dir, seed_offset=job["seed_offset"],
+              progress=False, checkpoint_seconds=seconds)
     return 0
 
 

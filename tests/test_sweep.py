@@ -163,25 +163,3 @@ def test_the_cpu_protocol_shortens_budgets_and_schedules_in_proportion_and_says_
     # the paper protocol changes nothing but the seeds
     paper_cell = [c for c in plan("overcooked", "paper") if c.path.startswith("overcooked-A/tomacvf/")][0]
     assert paper_cell.config() == paper and paper_cell.seeds == 20
-
-
-def test_a_cell_held_by_a_live_sweep_process_is_left_to_it_and_a_dead_ones_lock_taken_over(tmp_path, monkeypatch):
-    import socket
-    import subprocess
-    import sys
-
-    from jaxmac.sweep import LOCK
-
-    calls = []
-    _fake_runs(monkeypatch, calls)
-    cells = plan("ablation", "smoke", only="overcooked-B/")
-    held, stale = (tmp_path / c.path for c in cells[:2])
-    dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True,
-                          text=True).stdout.strip()
-    for folder, pid in ((held, os.getppid()), (stale, int(dead))):
-        folder.mkdir(parents=True)
-        (folder / LOCK).write_text(json.dumps({"host": socket.gethostname(), "pid": pid}))
-    done = run_sweep(cells, str(tmp_path), log=lambda *_: None)
-    assert done[cells[0].path] == "busy" and done[cells[1].path] == "trained"
-    assert (held / LOCK).exists() and not (stale / LOCK).exists()  # ours is released after the cell
-    assert ("train", str(held)) not in calls
