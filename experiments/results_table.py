@@ -4,7 +4,10 @@
 
 One row per run: scenario, algorithm, seeds, episodes per seed, final greedy discounted return (mean ± standard error
 over seeds, and the per-seed values), the optimal return where known, the fraction of it reached, the
-settings that differ from the scenario's defaults, and the run's wall time.
+settings that differ from the scenario's defaults, the run's wall time, and — where the scenario has a ceiling
+(``jaxmac.scenarios.CEILINGS``) — the final return as the results pages measure it (the mean of each seed's last 10
+evaluations, undiscounted on Warehouse) and the episodes each seed needed to reach 90 % of the ceiling
+(``jaxmac.stats.episodes_to_fraction``; "–" for a seed that never did).
 """
 
 from __future__ import annotations
@@ -14,7 +17,11 @@ import json
 import pathlib
 
 from jaxmac.config import TrainConfig, scenario_config
+import numpy as np
+
 from jaxmac.plotting import mean_and_standard_error
+from jaxmac.scenarios import CEILINGS
+from jaxmac.stats import episodes_to_fraction, final_returns, load_run_result
 
 
 def _changed_settings(run_dir: pathlib.Path, scenario: str) -> str:
@@ -28,11 +35,27 @@ def _changed_settings(run_dir: pathlib.Path, scenario: str) -> str:
     return ", ".join(changed) or "defaults"
 
 
+def _efficiency(run_dir: pathlib.Path, scenario: str) -> str:
+    """"last-10 means (their mean, % of ceiling) | episodes to 90 % per seed (mean over the seeds that got there)"."""
+    ceiling = CEILINGS.get(scenario)
+    if ceiling is None or not (run_dir / "metrics.csv").is_file():  # no ceiling, or a summary without its curves
+        return "– | –"
+    _, episodes, curves, _ = load_run_result(str(run_dir))
+    finals = final_returns(curves)
+    reach = episodes_to_fraction(episodes, curves, 0.9 * ceiling)
+    got = reach[~np.isnan(reach)]
+    per_seed = " ".join("–" if np.isnan(e) else f"{int(e):,}" for e in reach)
+    mean_reach = f"{got.mean():,.0f}" + ("" if len(got) == len(reach) else f" ({len(got)} of {len(reach)} seeds)")
+    return (f"{' '.join(f'{v:.1f}' for v in finals)}; {finals.mean():.1f}, {finals.mean() / ceiling:.0%} | "
+            f"{per_seed}; {mean_reach if len(got) else 'never'}")
+
+
 def table_rows(run_dirs: list[pathlib.Path]) -> list[str]:
     header = ("| scenario | algorithm | seeds | episodes/seed | final greedy return (mean ± s.e.) | per seed | optimal | "
-              "reached | settings | wall time |")
+              "reached | settings | wall time | last-10 evaluations (per seed), % of ceiling | episodes to 90 % "
+              "(per seed; mean) |")
     rows = [header,
-            "|---|---|---|---|---|---|---|---|---|---|"]
+            "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for run_dir in run_dirs:
         summary = json.loads((run_dir / "summary.json").read_text())
         values = summary["final_greedy_return"]
@@ -43,7 +66,8 @@ def table_rows(run_dirs: list[pathlib.Path]) -> list[str]:
         per_seed = " ".join(f"{v:.1f}" for v in values)
         rows.append(f"| {summary['scenario']} | {summary.get('algorithm', 'tomacvf')} | {summary['seeds']} | {summary['episodes']:,} | {mean:.1f} ± {se} | "
                     f"{per_seed} | {optimal if optimal else '–'} | {reached} | "
-                    f"{_changed_settings(run_dir, summary['scenario'])} | {summary['wall_seconds'] / 60:.0f} min |")
+                    f"{_changed_settings(run_dir, summary['scenario'])} | {summary['wall_seconds'] / 60:.0f} min | "
+                    f"{_efficiency(run_dir, summary['scenario'])} |")
     return rows
 
 

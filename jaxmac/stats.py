@@ -59,6 +59,21 @@ def final_returns(curves: np.ndarray, last: int = FINAL_POINTS) -> np.ndarray:
     return curves[:, -last:].mean(-1)
 
 
+def episodes_to_fraction(episodes: np.ndarray, curves: np.ndarray, target: float,
+                         window: int = FINAL_POINTS) -> np.ndarray:
+    """Sample efficiency per seed: the episodes at the first evaluation point where the trailing mean of the last
+    ``window`` evaluations (``plotting.smooth``, the curves' smoothing) reaches ``target`` (e.g. 0.9 × the
+    ceiling); NaN for a seed that never does. ``episodes`` [P], ``curves`` f[seeds, P] -> f64[seeds]."""
+    curves = np.asarray(curves, dtype=np.float64)
+    out = np.full(curves.shape[0], np.nan)
+    for s, row in enumerate(curves):
+        for p in range(window - 1, len(row)):
+            if row[p - window + 1: p + 1].mean() >= target:
+                out[s] = episodes[p]
+                break
+    return out
+
+
 def load_run_result(run_dir: str) -> tuple[list[int], np.ndarray, np.ndarray, dict]:
     """(seed ids, episodes [P], curves [seeds, P], summary) of a finished run folder."""
     with open(os.path.join(run_dir, "summary.json")) as f:

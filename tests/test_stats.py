@@ -132,3 +132,23 @@ def test_warehouse_is_compared_on_undiscounted_returns_whatever_gamma_a_run_lear
     results = load_sweep(str(tmp_path))
     np.testing.assert_allclose(results[("warehouse-A", "tomacvf")].finals, [500.0, 520.0])
     np.testing.assert_allclose(results[("overcooked-A", "tomacvf")].finals, [30.0, 50.0])
+
+
+def test_episodes_to_fraction_finds_the_first_smoothed_crossing_per_seed():
+    from jaxmac.stats import episodes_to_fraction
+
+    episodes = np.arange(1, 8) * 100
+    curves = np.array([[0, 0, 10, 10, 10, 10, 10],    # trailing means over 2: 0 0 5 10 ...
+                       [0, 9, 9, 0, 9, 9, 9],          # 4.5 9 4.5 4.5 9 9: first >= 8 at point 2
+                       [0, 1, 2, 3, 4, 5, 6]])         # never
+    got = episodes_to_fraction(episodes, curves, 8.0, window=2)
+    np.testing.assert_array_equal(got[:2], [400, 300])
+    assert np.isnan(got[2])
+    # a slow plain-Python reference on random curves
+    rng = np.random.default_rng(0)
+    curves = rng.uniform(0, 10, (5, 30))
+    for s, row in enumerate(curves):
+        ref = next((episodes_ref for p, episodes_ref in enumerate(range(100, 3100, 100))
+                    if p >= 9 and sum(row[p - 9:p + 1]) / 10 >= 6.0), np.nan)
+        got = episodes_to_fraction(np.arange(100, 3100, 100), curves, 6.0)[s]
+        assert (np.isnan(ref) and np.isnan(got)) or ref == got
