@@ -270,7 +270,7 @@ def test_discount_override_reaches_the_env_and_the_replay_slots(scenario, defaul
     from jaxmac.config import make_env
     from jaxmac.trainer import make_train
 
-    assert make_env(scenario_config(scenario, tiny=True)).spec.discount == default
+    assert make_env(scenario_config(scenario, tiny=True, paper=True)).spec.discount == default  # the env's own
     config = scenario_config(scenario, tiny=True).override_strings(["discount=0.9"])
     env = make_env(config)
     assert env.spec.discount == 0.9
