@@ -19,22 +19,7 @@ import chex
 import jax
 import jax.numpy as jnp
 
-SEED_AXIS = "seeds"  # the name of the vmapped seed axis of a training program
-
-
-def across_seeds(reduce: Callable, x: chex.Array) -> chex.Array:
-    """``reduce`` (``jax.lax.pmax``, ``pmin``, ...) of ``x`` over the seeds vmapped with ``SEED_AXIS``; ``x``
-    itself outside such a vmap (one seed, or seeds vmapped without the name: then the result stays batched)."""
-    try:
-        return reduce(x, SEED_AXIS)
-    except NameError:  # unbound axis name: not under the seeds' vmap
-        return x
-
-
-def any_seed(flag: chex.Array) -> chex.Array:
-    """bool[]: ``flag`` of any seed (``across_seeds`` for a boolean); for decisions every seed shares."""
-    return across_seeds(jax.lax.pmax, jnp.asarray(flag, jnp.int32)) > 0
-
+from jaxmac.seeds import across_seeds
 
 def bucket_sizes(full: int, count: int) -> tuple[int, ...]:
     """``count`` static lengths, halving from ``full``: ``bucket_sizes(100, 3) == (25, 50, 100)``; 1 = ``(full,)``."""

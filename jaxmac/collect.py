@@ -24,7 +24,7 @@ import jax
 import jax.numpy as jnp
 
 from envs_jax.core import MacroEnv, TimeStep
-from jaxmac.buckets import any_seed
+from jaxmac.seeds import any_seed
 
 Act = Callable[[Any, Any, TimeStep, chex.PRNGKey, chex.Array], tuple[Any, chex.Array]]
 

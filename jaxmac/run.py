@@ -41,7 +41,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxmac.buckets import SEED_AXIS
+from jaxmac.seeds import SEED_AXIS
 from jaxmac.config import TrainConfig
 from jaxmac.scenarios import OPTIMAL_DISC_RETURN
 

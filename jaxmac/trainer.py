@@ -37,7 +37,7 @@ from flax import struct
 from envs_jax.core import MacroEnv
 from jaxmac.algos.acting import epsilon_schedule
 from jaxmac.algos.base import Algorithm, Progress, sample_episodes
-from jaxmac.buckets import SEED_AXIS, any_seed
+from jaxmac.seeds import SEED_AXIS, any_seed
 from jaxmac.buffer import ring as ring_lib
 from jaxmac.buffer.episode import SlotConfig, empty_slot, write_episode
 from jaxmac.collect import episode_returns, run_episodes, run_episodes_first_finished

@@ -18,7 +18,8 @@ from envs_jax.wrappers import AutoReset
 from jaxmac.algos.families import actor_critic as ac
 from jaxmac.algos import make_algorithm
 from jaxmac.algos.base import Progress
-from jaxmac.buckets import SEED_AXIS, any_seed, bucket_sizes, packed_row_sizes, run_bucketed
+from jaxmac.buckets import bucket_sizes, packed_row_sizes, run_bucketed
+from jaxmac.seeds import SEED_AXIS, any_seed
 from jaxmac.collect import random_policy, run_episodes_first_finished, select_first_finished
 from jaxmac.config import make_env, scenario_config
 
