@@ -82,8 +82,6 @@ def evaluate_policy(env, policy: Policy, episodes: int = 10, key: int | jax.Arra
     Episode ``i`` runs from ``k = jax.random.split(key, episodes)[i]`` (``key`` an int is ``jax.random.key(key)``) as
     ``jaxmac.collect.run_episode`` does: ``k_reset, k_steps = split(k)``, ``env.reset(k_reset)``, and step ``t`` splits
     ``split(k_steps, horizon)[t]`` into the policy's key and the env's."""
-    from jaxmac.collect import episode_returns, run_episode
-
     if isinstance(episodes, bool) or not isinstance(episodes, int) or episodes < 1:
         raise ValueError(f"episodes={episodes!r} must be a positive integer")
     keys = jax.random.split(jax.random.key(key) if isinstance(key, int) else key, episodes)

@@ -496,11 +496,6 @@ def _metrics_text(columns: list[str], metrics: dict[str, np.ndarray], seed_ids: 
     return out.getvalue()
 
 
-def _write_metrics(path: str, metrics: dict[str, np.ndarray], seed_ids: list[int], first_round: int) -> None:
-    """Append one row per seed and round for metrics with leaves [seeds, rounds] (every metric a column), fsynced."""
-    _append_chunks(path, [(metrics, first_round)], seed_ids)
-
-
 def _append_chunks(path: str, chunks: list[tuple[dict[str, np.ndarray], int]], seed_ids: list[int],
                    advice: str = "") -> None:
     """Append the rows of several chunks' metrics ((metrics, first round) each) in one write, then fsync."""
@@ -565,12 +560,6 @@ def out_of_bounds_message(metrics: dict[str, np.ndarray], seed_ids: list[int], f
     return (f"seed {seed_ids[seed]}, round {first_round + rnd} (episode {int(metrics['episodes'][seed, rnd])}): "
             f"{name} = {value:.6g} is outside the value bounds [{bounds[0]:.6g}, {bounds[1]:.6g}] that every return "
             f"of this env lies in (widened by divergence_margin)")
-
-
-def _truncate_metrics(path: str, rounds_done: int) -> None:
-    """Cut metrics.csv back to exactly its rows of rounds ``< rounds_done`` (those a checkpoint covers): rows a
-    resumed run will redo, a partial last line and malformed lines are dropped."""
-    _cut_metrics(path, _read_metrics_file(path), rounds_done)
 
 
 def write_json_atomic(path: str, obj: Any) -> None:

@@ -26,10 +26,6 @@ from typing import Any
 from jaxmac.config import TrainConfig, scenario_config
 from jaxmac.scenarios import BOXPUSHING, FAMILIES, OVERCOOKED, WAREHOUSE, family
 
-# the lock file of a cell: its run folder's (``jaxmac.run.LOCK_FILE``)
-LOCK = "run.lock"
-
-
 @dataclasses.dataclass(frozen=True)
 class Method:
     """A learner with its settings, as a curve of the paper's figures is labelled."""

@@ -174,7 +174,8 @@ def _fake_runs(monkeypatch, calls):
 
 def test_a_sweep_cell_is_left_to_a_live_holder_and_taken_over_when_it_died_or_its_lock_file_is_stale(
         tmp_path, monkeypatch):
-    from jaxmac.sweep import LOCK, plan, run_sweep
+    from jaxmac.run import LOCK_FILE as LOCK
+    from jaxmac.sweep import plan, run_sweep
 
     calls = []
     _fake_runs(monkeypatch, calls)
