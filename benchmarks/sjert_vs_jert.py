@@ -45,7 +45,7 @@ def run_row(run_dir: str) -> dict:
     """The table's numbers for one finished run folder."""
     import pandas as pd
 
-    from jaxmac.stats import final_returns, load_run_result
+    from jaxmac.study.stats import final_returns, load_run_result
 
     seeds, episodes, curves, summary = load_run_result(run_dir)
     metrics = pd.read_csv(os.path.join(run_dir, "metrics.csv"))
@@ -57,7 +57,7 @@ def run_row(run_dir: str) -> dict:
 
 def main(argv=None) -> None:
     from jaxmac.cli import seed_range
-    from jaxmac.config import SCENARIOS
+    from jaxmac.scenarios import SCENARIOS
 
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--scenario", default="boxpushing-6x6", choices=list(SCENARIOS))
@@ -73,13 +73,13 @@ def main(argv=None) -> None:
     if args.episodes < 1:
         raise SystemExit(f"--episodes {args.episodes}: need at least 1")
 
-    from jaxmac.run import enable_compilation_cache, use_host_devices
+    from jaxmac.runs import enable_compilation_cache, use_host_devices
 
     use_host_devices(args.devices)  # before JAX starts
-    from jaxmac.config import scenario_config
+    from jaxmac.presets import scenario_config
     from jaxmac.plotting import plot_curves
-    from jaxmac.stats import welch_p
-    from jaxmac.sweep import TOMACVF, WO_SJERT, Cell, run_sweep
+    from jaxmac.study.stats import welch_p
+    from jaxmac.study.sweep import TOMACVF, WO_SJERT, Cell, run_sweep
 
     extra = scenario_config(args.scenario, tiny=args.tiny).override_strings(args.assignments).flat_dict()
     base = scenario_config(args.scenario, tiny=args.tiny).flat_dict()

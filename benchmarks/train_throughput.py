@@ -56,15 +56,16 @@ def measure(algorithm: str, scenario: str, seeds: int, seed_offset: int, chunks:
     import jax.numpy as jnp
     import numpy as np
 
-    from jaxmac.algos import make_algorithm
-    from jaxmac.config import make_env, scenario_config
+    from jaxmac.algos.registry import make_algorithm
+    from jaxmac.config import make_env
+    from jaxmac.presets import scenario_config
     from jaxmac.trainer import make_train
 
     if run_dir is None:
         config = scenario_config(scenario, algorithm).override_strings(assignments)
         rounds_per_chunk = None
     else:
-        from jaxmac.run import load_run
+        from jaxmac.runs import load_run
 
         run_trainer, run_state, _, _ = load_run(run_dir)
         config = run_trainer.config.override_strings(assignments)
@@ -80,7 +81,7 @@ def measure(algorithm: str, scenario: str, seeds: int, seed_offset: int, chunks:
     else:
         state = jax.tree_util.tree_map(lambda x: x[:seeds], run_state)
     if devices > 1:
-        from jaxmac.run import seed_sharding
+        from jaxmac.runs import seed_sharding
 
         state = jax.device_put(state, seed_sharding(seeds, devices))
     t0 = time.perf_counter()
@@ -105,7 +106,7 @@ def run_workers(algorithm: str, scenario: str, seeds: int, workers: int, chunks:
                 assignments: list[str], run_dir: str | None = None, devices: int = 1) -> list[dict]:
     """``workers`` concurrent processes, each measuring its share of the seeds (sharded over ``devices`` host
     devices of its own)."""
-    from jaxmac.workers import split_seeds
+    from jaxmac.runs.workers import split_seeds
 
     procs = [subprocess.Popen([sys.executable, __file__, "--child", algorithm, scenario, str(s), str(o), str(chunks),
                               json.dumps(assignments), run_dir or "", str(devices)],
@@ -123,14 +124,14 @@ def main(argv=None) -> None:
     if argv is None and len(sys.argv) > 1 and sys.argv[1] == "--child":
         algorithm, scenario = sys.argv[2], sys.argv[3]
         seeds, offset, chunks = int(sys.argv[4]), int(sys.argv[5]), int(sys.argv[6])
-        from jaxmac.run import use_host_devices
+        from jaxmac.runs import use_host_devices
 
         use_host_devices(int(sys.argv[9]))  # before JAX starts
         print(json.dumps(measure(algorithm, scenario, seeds, offset, chunks, json.loads(sys.argv[7]),
                                  sys.argv[8] or None, int(sys.argv[9]))))
         return
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    from jaxmac.algos import REGISTRY
+    from jaxmac.algos.registry import REGISTRY
 
     p.add_argument("--algorithm", default="tomacvf", choices=list(REGISTRY))
     p.add_argument("--scenario", nargs="+", default=["boxpushing-6x6"],
@@ -147,7 +148,7 @@ def main(argv=None) -> None:
     p.add_argument("--set", dest="assignments", action="append", default=[], metavar="KEY=VALUE",
                    help="config override, as in `jaxmac train --set` (repeatable)")
     args = p.parse_args(argv)
-    from jaxmac.config import scenario_config
+    from jaxmac.presets import scenario_config
 
     for scenario in args.scenario:
         scenario_config(scenario, args.algorithm).override_strings(args.assignments)  # bad values fail here

@@ -22,10 +22,10 @@ import time
 
 
 def main(argv=None) -> None:
-    from jaxmac.algos import REGISTRY
+    from jaxmac.algos.registry import REGISTRY
 
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    bucketed = [name for name, entry in REGISTRY.items() if entry.length_buckets]
+    bucketed = [name for name, entry in REGISTRY.items() if entry.settings.supports_length_buckets]
     p.add_argument("--algorithm", default="mac_iaicc", choices=bucketed)
     p.add_argument("--scenario", default="overcooked-A")
     p.add_argument("--epsilon", type=float, default=1.0, help="exploration rate of the profiled collection")
@@ -42,17 +42,19 @@ def main(argv=None) -> None:
     import jax
     import jax.numpy as jnp
 
-    from jaxmac.algos import make_algorithm
-    from jaxmac.algos.base import Progress, store_length
+    from jaxmac.algos.base import Progress
+    from jaxmac.algos.registry import make_algorithm
     from jaxmac.buckets import bucket_sizes, packed_row_sizes
     from jaxmac.buffer.episode import write_episode
+    from jaxmac.buffer.sources import store_length
     from jaxmac.collect import run_episodes_first_finished
-    from jaxmac.config import make_env, scenario_config
+    from jaxmac.config import make_env
+    from jaxmac.presets import scenario_config
     from jaxmac.trainer import make_train
 
     if args.run is not None:
         from jaxmac.buffer import ring as ring_lib
-        from jaxmac.run import load_run
+        from jaxmac.runs import load_run
 
         trainer, run_state, _, _ = load_run(args.run)
         env = trainer.env

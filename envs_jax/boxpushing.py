@@ -294,6 +294,18 @@ class BoxPushing(MacroEnv[BoxPushingCore]):
         return jnp.concatenate([agents, boxes])
 
     # --- rendering ---------------------------------------------------------------------
+    # What ``render`` prints, symbol by symbol: (symbol, meaning) pairs (``jaxmac rollout`` prints them).
+    render_legend = (
+        (".", "empty cell (north is up; row 0 at the bottom)"),
+        ("s", "small box (one agent can push it)"),
+        ("B B", "the big box, two cells wide (both agents must push it together)"),
+        ("0> 1<", "agent 0 / agent 1 and its heading: ^ north, > east, v south, < west"),
+        ("s0^", "an agent in a box's cell: the box's symbol, then the agent's"),
+        ("<- goal", "the goal row (top): the first box pushed into it ends the episode"),
+        ("agent i: ...", "its macro-action, free (chooses next step) or busy, last waypoint, big-box lock"),
+        ("off-grid", "an agent outside the grid (no walls stop it, Q3) is listed below the grid"),
+    )
+
     def render(self, state) -> str:
         """Text grid, north at the top: ``s`` small box, ``B`` big box, ``^>v<`` agents 0/1
         (digits show which), ``.`` empty; off-grid agents are listed below."""

@@ -13,6 +13,7 @@ import typing
 from typing import Any, Callable
 
 from envs_jax.core import MacroEnv
+from envs_jax.validation import has_type, type_name
 
 
 @dataclasses.dataclass(frozen=True)
@@ -60,17 +61,6 @@ def apply_overrides(config: Any, overrides: dict[str, Any], env_name: str) -> An
             raise ValueError(
                 f"{env_name}: unknown override {key!r}; valid overrides: {sorted(k for k, f in fields.items() if f.init)}"
             )
-        _check_type(env_name, key, value, hints[key])
+        if hints[key] in (int, float, bool, str) and not has_type(value, hints[key]):
+            raise ValueError(f"{env_name}: override {key}={value!r} must be of type {type_name(hints[key])}")
     return dataclasses.replace(config, **overrides)
-
-
-def _check_type(env_name: str, key: str, value: Any, hint: Any) -> None:
-    ok = {
-        int: isinstance(value, int) and not isinstance(value, bool),
-        float: isinstance(value, (int, float)) and not isinstance(value, bool),
-        bool: isinstance(value, bool),
-        str: isinstance(value, str),
-    }.get(hint, True)
-    if not ok:
-        name = getattr(hint, "__name__", str(hint))
-        raise ValueError(f"{env_name}: override {key}={value!r} must be of type {name}")

@@ -3,7 +3,7 @@
     taskset -c 0 python experiments/calibrate_protocol.py --pairs tomacvf@overcooked-B maccen_ddrqn@boxpushing-14x14
     taskset -c 0 python experiments/calibrate_protocol.py --experiment bp overcooked   # every (method, scenario)
 
-For each (method, scenario) — a method is a sweep method name (``jaxmac.sweep``: ``tomacvf``, ``tomacvf-qplex``,
+For each (method, scenario) — a method is a sweep method name (``jaxmac.study.sweep``: ``tomacvf``, ``tomacvf-qplex``,
 ``tomacvf-wo-sjert``, ``mac_cac`` ...) — one process compiles the method's training chunk for ``--seeds`` vmapped
 seeds, fills the ring to where gradient steps run, and times ``--chunks`` chunks (``benchmarks/train_throughput.py``'s
 measurement). The training episodes per wall-second of all seeds go to ``--out`` (JSON, one entry per pair, kept
@@ -41,7 +41,7 @@ def method_assignments(method, scenario: str) -> list[str]:
 def measure_pair(method_name: str, scenario: str, seeds: int, chunks: int) -> dict:
     from train_throughput import run_workers
 
-    from jaxmac.sweep import method_by_name
+    from jaxmac.study.sweep import method_by_name
 
     method = method_by_name(method_name)
     (m,) = run_workers(method.algorithm, scenario, seeds, 1, chunks, method_assignments(method, scenario))
@@ -56,7 +56,7 @@ def rate_from_run(method_name: str, scenario: str, run_dir: str) -> dict:
     budget, the schedules a protocol scales with it and the length buckets aside: buckets change the cost, not the
     result)."""
     from jaxmac.config import TrainConfig
-    from jaxmac.sweep import SCHEDULE_SETTINGS, method_by_name
+    from jaxmac.study.sweep import SCHEDULE_SETTINGS, method_by_name
 
     with open(os.path.join(run_dir, "config.json")) as f:
         held = TrainConfig.from_dict(json.load(f)["config"])
@@ -75,7 +75,7 @@ def rate_from_run(method_name: str, scenario: str, run_dir: str) -> dict:
 
 
 def main(argv=None) -> None:
-    from jaxmac.sweep import EXPERIMENTS, plan
+    from jaxmac.study.sweep import EXPERIMENTS, plan
 
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--pairs", nargs="*", default=[], metavar="METHOD@SCENARIO")

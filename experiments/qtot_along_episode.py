@@ -20,7 +20,7 @@ import numpy as np
 def qtot_along_episode(run_dir: str, seed_index: int = 0, key: int = 0) -> tuple[np.ndarray, np.ndarray, int]:
     """``qtot_rows`` of one greedy episode (PRNG key ``key``) of a run's seed at its newest checkpoint."""
     from jaxmac.collect import run_episode
-    from jaxmac.run import load_run
+    from jaxmac.runs import load_run
 
     trainer, state, _, _ = load_run(run_dir)
     config, env, algo = trainer.config, trainer.env, trainer.algorithm

@@ -32,8 +32,8 @@ class Policy:
     (``jax.jit(policy.act)``; a ``Policy`` is also a pytree, so it can be passed into a jitted function).
 
     ``greedy`` (the default): the actor-critics' ``greedy_act`` (the argmax of their actors); a learner without one
-    acts with ``Algorithm.act`` at ε = 0 — for the value learners their greedy policy (as ``_programs`` in
-    ``jaxmac.run`` picks the final evaluation's policy).
+    acts with ``Algorithm.act`` at ε = 0 — for the value learners their greedy policy (as ``programs_for`` in
+    ``jaxmac.runs.programs`` picks the final evaluation's policy).
     ``greedy=False``: the learner's evaluation policy ``Algorithm.act`` at ε = 0 — the actor-critics sample from
     their actors (what their training curves report); for the value learners it is the same greedy policy.
     """
@@ -182,7 +182,7 @@ def load(run_dir: str) -> Run:
     checkpoint that restores. Reads only (and turns on JAX's persistent compilation cache, as the CLI does)."""
     import json
 
-    from jaxmac.run import enable_compilation_cache, load_run, read_meta
+    from jaxmac.runs import enable_compilation_cache, load_run, read_meta
 
     enable_compilation_cache()
     meta = read_meta(run_dir)
@@ -203,7 +203,7 @@ def load(run_dir: str) -> Run:
             for i, seed in enumerate(range(part["seed_offset"], part["seed_offset"] + part["seeds"])):
                 params[seed] = jax.tree_util.tree_map(lambda x, i=i: x[i], state.params)
     if env is None:  # no checkpoint anywhere: the settings and records only
-        from jaxmac.algos import make_algorithm
+        from jaxmac.algos.registry import make_algorithm
         from jaxmac.config import make_env
 
         env = make_env(config)
@@ -219,14 +219,14 @@ def load(run_dir: str) -> Run:
 def train(preset: str | TrainConfig | None = None, *, scenario: str | None = None, algorithm: str | None = None,
           seeds: int | None = None, out_dir: str | None = None, tiny: bool = False, paper: bool = False,
           seed_offset: int = 0, progress: bool = True, **overrides) -> Run:
-    """Train a run (``jaxmac.run.train_run``, as ``jaxmac train`` does) and return it loaded (``load``).
+    """Train a run (``jaxmac.runs.train_run``, as ``jaxmac train`` does) and return it loaded (``load``).
 
     What to train: a preset name (``"quickstart"``; ``jaxmac train --help`` lists them), or ``scenario`` and
     ``algorithm`` (defaults ``boxpushing-6x6`` and ``tomacvf``; ``tiny``: test sizes, ``paper``: the publication's
     values), or a ``TrainConfig``; ``overrides`` are settings on top (``episodes=500``, ``lr=5e-4``). ``seeds``:
     the preset's count, else 1. ``out_dir``: default ``runs/SCENARIO-ALGORITHM-TIME``."""
-    from jaxmac.config import preset_config, scenario_config
-    from jaxmac.run import default_out_dir, enable_compilation_cache, train_run
+    from jaxmac.presets import preset_config, scenario_config
+    from jaxmac.runs import default_out_dir, enable_compilation_cache, train_run
 
     fixed = [name for name, given in (("scenario", scenario is not None), ("algorithm", algorithm is not None),
                                       ("tiny", tiny), ("paper", paper)) if given]

@@ -9,6 +9,8 @@
     jaxmac train --finish runs/RUN_DIR                    # end a run where it stands (a curve flat for long)
     jaxmac eval runs/RUN_DIR                              # greedy episode: text + PNG strip
     jaxmac sweep ablation --protocol cpu                  # one of the paper's experiments, cell by cell
+    jaxmac results experiments/sweeps/cpu                 # its results page -> experiments/sweeps/cpu/results/
+    jaxmac table runs/RUN_DIR ...                         # a Markdown table of finished runs
 """
 
 from __future__ import annotations
@@ -41,6 +43,12 @@ def cmd_rollout(args) -> int:
     first = jax.tree_util.tree_map(lambda x: x[0], final_state)
     print(f"{env.spec.name}: final state of random episode 0 (after {int(stats['length'][0])} steps)")
     print(env.render(first))
+    legend = getattr(env, "render_legend", ())  # (symbol, meaning) pairs, beside each env's render
+    if legend:
+        width = max(len(symbol) for symbol, _ in legend)
+        print("legend:")
+        for symbol, meaning in legend:
+            print(f"  {symbol.ljust(width)}  {meaning}")
     print()
     print(f"{args.episodes} uniform-random episodes (seed {args.seed}, {seconds:.1f} s including compilation):")
     print(f"  discounted return (gamma={env.spec.discount}): mean {stats['disc_return'].mean():.3f}"
@@ -52,10 +60,20 @@ def cmd_rollout(args) -> int:
 
 
 def cmd_train(args) -> int:
-    from jaxmac.config import parse_assignments, preset_config, scenario_config
-    from jaxmac.run import default_out_dir, enable_compilation_cache, finish_run, resume_run, train_run, use_host_devices
-    from jaxmac.workers import is_worker_run, resume_workers, train_workers
+    from jaxmac.config import parse_assignments
+    from jaxmac.presets import preset_config, scenario_config
+    from jaxmac.runs import default_out_dir, enable_compilation_cache, finish_run, resume_run, train_run, use_host_devices
+    from jaxmac.runs.workers import is_worker_run, resume_workers, train_workers
 
+    if args.list_settings:
+        from jaxmac.config_files import load_config_file, settings_listing
+
+        loaded = load_config_file(args.config, args.algorithm) if args.config is not None else None
+        print(settings_listing(args.algorithm or (loaded and (loaded.config or loaded).algorithm) or "tomacvf"))
+        return 0
+    if args.config is not None and (args.resume or args.finish or args.preset is not None):
+        raise ValueError(f"--config {args.config} starts a new run from a file; --resume, --finish and --preset "
+                         "cannot be combined with it")
     devices = 1 if args.devices is None else args.devices
     if devices > 1 and args.workers not in (None, 1):
         raise ValueError(f"--devices {devices} and --workers {args.workers}: choose one way to split the seeds "
@@ -107,6 +125,14 @@ def cmd_train(args) -> int:
             if args.episodes is not None:
                 config = config.override(episodes=args.episodes)
             config = config.override_strings(args.set)
+        elif args.config is not None:  # a file (or a run's config.json), then --episodes/--set on top
+            from jaxmac.config_files import config_from_file
+
+            config, loaded = config_from_file(args.config, args.scenario, args.algorithm, args.tiny, args.paper,
+                                              args.set, args.episodes)
+            print(f"config {args.config}" + (f": {loaded.about}" if loaded.about else ""))
+            if args.seeds is None and loaded.seeds is not None:
+                args.seeds = loaded.seeds
         else:
             algorithm = args.algorithm or "tomacvf"
             overrides = parse_assignments(args.set, algorithm)
@@ -133,16 +159,30 @@ def cmd_train(args) -> int:
 
 
 def cmd_eval(args) -> int:
-    from jaxmac.evaluate import evaluate_run
-    from jaxmac.run import enable_compilation_cache
+    from jaxmac.runs.evaluation import evaluate_run
+    from jaxmac.runs import enable_compilation_cache
 
     enable_compilation_cache()
-    txt, png, stats = evaluate_run(args.run_dir, args.seed_index)
+    txt, png, stats = evaluate_run(args.run_dir, args.seed_index, args.episodes, args.gif)
     with open(txt) as f:
         print(f.read())
-    print(f"greedy episode of seed {args.seed_index}: {int(stats['length'])} steps, discounted return "
-          f"{stats['disc_return']:.3f}, undiscounted {stats['return']:.3f}")
-    print(f"wrote {txt} and {png}")
+    per, n, gamma = stats["episodes"], len(stats["keys"]), stats["discount"]
+    print(f"greedy policy of seed {args.seed_index} (checkpoint after {stats['chunks_trained']} chunks), {n} "
+          f"episode{'s' if n > 1 else ''} (episode e from jax.random.key({stats['keys'][0]} + e)):")
+    print(f"  episode  steps  task done  discounted (gamma={gamma})  undiscounted")
+    for e in range(n):
+        print(f"  {e:7d}  {per['length'][e]:5d}  {'yes' if per['terminated'][e] else 'no':>9}  "
+              f"{per['disc_return'][e]:{20 + len(str(gamma))}.3f}  {per['return'][e]:12.3f}")
+    disc, undisc = np.asarray(per["disc_return"]), np.asarray(per["return"])
+    se = (lambda x: f" ± {x.std(ddof=1) / np.sqrt(n):.3f} (s.e.)") if n > 1 else (lambda x: "")
+    print(f"  mean over {n} episodes: discounted {disc.mean():.3f}{se(disc)}, undiscounted "
+          f"{undisc.mean():.3f}{se(undisc)}")
+    if n > 1 and len(set(per["disc_return"])) == 1 and len(set(per["length"])) == 1:
+        print(f"  (all {n} episodes alike: without noise in the env, a greedy policy plays the same episode from "
+              "every key)")
+    width, height = stats["png_size"]
+    print(f"wrote {txt} (episode 0 as text), {png} (episode 0 drawn, {width} x {height} px)"
+          + (f" and {stats['gif']} ({stats['gif_frames']} frames)" if stats["gif"] else ""))
     return 0
 
 
@@ -162,12 +202,17 @@ def seed_range(text: str) -> tuple[int, int]:
 
 
 def cmd_sweep(args) -> int:
-    from jaxmac.run import enable_compilation_cache, use_host_devices
-    from jaxmac.sweep import PROTOCOLS, cell_status, estimate_seconds, load_rates, not_run_cells, plan, run_sweep
+    from jaxmac.runs import enable_compilation_cache, use_host_devices
+    from jaxmac.study.sweep import PROTOCOLS, cell_status, estimate_seconds, load_rates, not_run_cells, plan, run_sweep
 
     devices = 1 if args.devices is None else args.devices
     use_host_devices(devices)  # before JAX starts
-    cells = plan(args.experiment, args.protocol, args.seeds, args.only)
+    methods = None
+    if args.config is not None:  # a method file: methods added to (or replacing) the experiment's
+        from jaxmac.config_files import sweep_methods
+
+        methods = sweep_methods(args.config, args.experiment)
+    cells = plan(args.experiment, args.protocol, args.seeds, args.only, methods)
     out = args.out or os.path.join("experiments", "sweeps", args.protocol)
     print(f"sweep {args.experiment}, protocol {args.protocol} ({PROTOCOLS[args.protocol].about}): {len(cells)} cells "
           f"into {out}")
@@ -188,9 +233,38 @@ def cmd_sweep(args) -> int:
         print(f"estimated {total / 3600:.1f} core-hours at the measured rates of {args.rates}"
               + (f"; {unknown} cells not measured" if unknown else ""))
         return 0
+    if args.cluster == "ray":
+        return _sweep_on_ray(args, cells, out)
+    if args.ray_address or args.gpus_per_cell or args.cpus_per_cell != 1.0 or args.shared_fs != "auto":
+        raise ValueError("--ray-address, --cpus-per-cell, --gpus-per-cell and --shared-fs are options of "
+                         "--cluster ray")
     enable_compilation_cache()
     run_sweep(cells, out, devices=devices, progress=not args.no_progress, checkpoint_seconds=args.checkpoint_every)
     return 0
+
+
+def _sweep_on_ray(args, cells, out) -> int:
+    """``jaxmac sweep --cluster ray``: every cell a Ray task (jaxmac/study/cluster.py)."""
+    try:
+        import ray  # noqa: F401  (an optional extra)
+    except ImportError as err:
+        raise ValueError(f"--cluster ray needs Ray ({err}): pip install -e \".[cluster]\"") from None
+    from jaxmac.study.cluster import run_sweep_ray
+    from jaxmac.study.sweep import load_rates
+
+    shared = {"auto": None, "yes": True, "no": False}[args.shared_fs]
+    try:
+        done = run_sweep_ray(cells, out, devices=args.devices, progress=not args.no_progress,
+                             checkpoint_seconds=args.checkpoint_every, address=args.ray_address,
+                             cpus_per_cell=args.cpus_per_cell, gpus_per_cell=args.gpus_per_cell, retries=args.retries,
+                             shared=shared, rates=load_rates(args.rates))
+    except KeyboardInterrupt:
+        return 130
+    failed = {path: what for path, what in done.items() if what.startswith("failed")}
+    finished = sum(what in ("trained", "resumed", "skipped") for what in done.values())
+    print(f"{finished} of {len(cells)} cells finished" + (f"; {len(failed)} failed: {', '.join(failed)}" if failed
+                                                            else ""))
+    return 1 if failed else 0
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -202,8 +276,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=0)
     p.set_defaults(func=cmd_rollout)
 
-    from jaxmac.algos import REGISTRY
-    from jaxmac.config import PRESETS, SCENARIOS
+    from jaxmac.algos.registry import REGISTRY
+    from jaxmac.presets import PRESETS
+    from jaxmac.scenarios import SCENARIOS
 
     p = sub.add_parser("train", help="train a learner (default ToMacVF) on a scenario, vmapped over seeds")
     p.add_argument("--preset", default=None, choices=list(PRESETS),
@@ -216,7 +291,15 @@ def build_parser() -> argparse.ArgumentParser:
                    help="N: seeds 0..N-1; A:B: seeds A..B-1, e.g. 4:8 adds four seeds to a run of --seeds 4 (vmapped "
                         "in one process; default 1)")
     p.add_argument("--episodes", type=int, default=None, help="training episodes per seed (default: the paper's)")
-    p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="override any config value")
+    p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                   help="override any config value (--list-settings lists the keys)")
+    p.add_argument("--config", default=None, metavar="FILE",
+                   help="start from a config file: TOML, YAML or JSON naming a scenario, an algorithm, seeds and "
+                        "settings (experiments/configs/), or a run's config.json (or its folder) to repeat that run; "
+                        "--episodes, --seeds and --set apply on top")
+    p.add_argument("--list-settings", action="store_true",
+                   help="print every setting key (shared, and the --algorithm's block) with its type, default and "
+                        "meaning, and exit")
     p.add_argument("--tiny", action="store_true", help="tiny networks and budgets (smoke runs)")
     p.add_argument("--paper", action="store_true",
                    help="the publication's settings where jaxmac's defaults differ (ToMacVF on Overcooked and "
@@ -237,7 +320,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_train)
 
-    from jaxmac.sweep import EXPERIMENTS, PROTOCOLS
+    from jaxmac.study.sweep import EXPERIMENTS, PROTOCOLS
 
     p = sub.add_parser("sweep", help="run one of the paper's experiments: every (method, scenario) cell x seeds into "
                                      "one folder, skipping finished cells and resuming interrupted ones")
@@ -249,21 +332,85 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", default=None, help="sweep folder (default: experiments/sweeps/PROTOCOL, shared by the "
                                                "experiments so that a cell two of them need runs once)")
     p.add_argument("--only", default=None, metavar="TEXT", help="only the cells whose path contains TEXT")
+    p.add_argument("--config", default=None, metavar="FILE",
+                   help="a TOML (YAML, JSON) file of [[method]] tables (name, algorithm, label, settings, "
+                        "scenario_settings) added to the experiment's methods, replacing one of the same name "
+                        "(replace = true: instead of them); experiments/configs/sweep-methods.toml")
     p.add_argument("--devices", type=int, default=None, help="devices to shard each cell's seeds over (as train)")
     p.add_argument("--dry-run", action="store_true",
                    help="list the cells, their status and estimated cost, run nothing")
     p.add_argument("--rates", default=os.path.join("experiments", "protocol_rates.json"),
-                   help="with --dry-run: measured rates (experiments/calibrate_protocol.py) to estimate cell costs")
+                   help="with --dry-run (and --cluster ray's ETA): measured rates (experiments/calibrate_protocol.py) "
+                        "to estimate cell costs")
     p.add_argument("--checkpoint-every", type=float, default=120.0, metavar="SECONDS",
                    help="checkpoint each cell at most every SECONDS of training (as train; default 120)")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
+    p.add_argument("--cluster", default=None, choices=["ray"],
+                   help="run every cell as a task on a Ray cluster (pip install -e \".[cluster]\"): retried when its "
+                        "worker dies, resumed from its checkpoint; docs/sweeps.md")
+    p.add_argument("--ray-address", default=None, metavar="ADDRESS",
+                   help="with --cluster ray: the cluster to join (auto: the one this node belongs to; HOST:6379; "
+                        "ray://HOST:10001); default: as ray.init(), the cluster in RAY_ADDRESS or started on this "
+                        "machine, else a new local Ray instance on every core")
+    p.add_argument("--cpus-per-cell", type=float, default=1.0, metavar="N",
+                   help="with --cluster ray: CPUs each cell's task asks for (default 1)")
+    p.add_argument("--gpus-per-cell", type=float, default=0.0, metavar="N",
+                   help="with --cluster ray: GPUs each cell's task asks for (default 0; with N >= 1 the cell's seeds "
+                        "are sharded over its N GPUs as --devices N; a fraction shares a GPU between cells)")
+    p.add_argument("--retries", type=int, default=3, metavar="N",
+                   help="with --cluster ray: times a cell whose worker or node died is run again, resuming from its "
+                        "checkpoint (default 3; a cell's own error is never retried)")
+    p.add_argument("--shared-fs", default="auto", choices=["auto", "yes", "no"],
+                   help="with --cluster ray: whether the workers see the sweep folder (auto: each task looks); where "
+                        "not, a cell trains on its node and its files come back to this process")
     p.set_defaults(func=cmd_sweep)
 
-    p = sub.add_parser("eval", help="render a greedy episode of a trained run (text and a PNG strip)")
+    p = sub.add_parser("eval", help="greedy episodes of a trained run: their returns, and the first one as text, "
+                                    "a picture of its frames (PNG) and optionally a GIF")
     p.add_argument("run_dir")
     p.add_argument("--seed-index", type=int, default=0, help="which of the run's seeds")
+    p.add_argument("--episodes", type=int, default=1,
+                   help="greedy episodes to play (vmapped; episode e from jax.random.key(e)); each one's discounted "
+                        "and undiscounted return is printed, and their mean (default 1)")
+    p.add_argument("--gif", action="store_true", help="also write greedy_seedI.gif, one frame per step of episode 0")
     p.set_defaults(func=cmd_eval)
+
+    from jaxmac.study.sweep import EXPERIMENTS, PROTOCOLS
+
+    p = sub.add_parser("results", help="the results page of a sweep folder: figures, tables, statistics (RESULTS.md)")
+    p.add_argument("sweep_dir", metavar="SWEEP_DIR", help="a folder of `jaxmac sweep` (e.g. experiments/sweeps/cpu)")
+    p.add_argument("--out", default=None, help="folder of RESULTS.md and the figures (default: SWEEP_DIR/results)")
+    p.add_argument("--experiments", nargs="+", default=list(EXPERIMENTS), choices=list(EXPERIMENTS),
+                   help="the experiments on the page (default: all)")
+    p.add_argument("--protocol", default=None, choices=list(PROTOCOLS),
+                   help="the sweep's protocol (default: the folder's name if it is one, else the protocol the cells' "
+                        "configurations match)")
+    p.set_defaults(func=cmd_results)
+
+    p = sub.add_parser("table", help="a Markdown table of finished run folders: final returns, settings, wall time")
+    p.add_argument("runs", nargs="+", metavar="RUN_DIR", help="finished run folders")
+    p.set_defaults(func=cmd_table)
     return parser
+
+
+def cmd_results(args) -> int:
+    from jaxmac.study.results_page import write_page
+
+    if not os.path.isdir(args.sweep_dir):
+        raise ValueError(f"{args.sweep_dir}: no such sweep folder")
+    out = args.out or os.path.join(args.sweep_dir, "results")
+    path = write_page(args.sweep_dir, out, args.experiments, args.protocol)
+    print(f"wrote {path} (beside it a figure per experiment with a finished cell)")
+    return 0
+
+
+def cmd_table(args) -> int:
+    import pathlib
+
+    from jaxmac.study.results_table import table
+
+    print(table([pathlib.Path(r) for r in args.runs]))
+    return 0
 
 
 def os_error_line(err: OSError) -> str:

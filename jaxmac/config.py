@@ -1,12 +1,14 @@
-"""Typed, frozen, validated training configurations: shared run settings plus one block per algorithm.
+"""Typed, frozen, validated training configurations: the trainer's shared settings plus one learner's block.
 
-``scenario_config("boxpushing-6x6")`` returns ToMacVF's settings of the paper's appendix tables
-(``shared/design/HYPERPARAMS.md``) as interpreted by ``DECISIONS.md``; ``scenario_config(s, "maccen_ddrqn")``
-a baseline's settings from the original scripts. ``TrainConfig`` holds what the shared trainer reads
-(budget, collection and update schedule, replay, optimiser, targets, exploration, evaluation); its field
-``algo`` is the algorithm's own settings block (``jaxmac.algos.settings``). ``config.override(**values)`` and
-``config.override_strings(["lr=3e-4"])`` (the CLI's ``--set``) take shared and block names alike and return a
-validated copy; a name of another algorithm's block is refused, naming that algorithm.
+``TrainConfig`` holds what the shared trainer reads (budget, collection and update schedule, replay, optimiser,
+targets, exploration, evaluation, the divergence guard); its field ``algo`` is the learner's own settings block, a
+frozen dataclass deriving from ``LearnerSettings`` and defined in the learner's module. A block class names its
+learner in its class statement (``class MacDecQSettings(..., algorithm="macdec_q")``), which registers it here: this
+module imports nothing of the learners, and a configuration of a learner can be built once its module is imported
+(``jaxmac.algos.registry`` imports them all; ``jaxmac.presets.scenario_config`` builds a scenario's configuration).
+
+``config.override(**values)`` and ``config.override_strings(["lr=3e-4"])`` (the CLI's ``--set``) take shared and
+block names alike and return a validated copy; a name of another learner's block is refused, naming that learner.
 """
 
 from __future__ import annotations
@@ -14,13 +16,67 @@ from __future__ import annotations
 import dataclasses
 import math
 import typing
-from typing import Any
+from typing import Any, ClassVar
 
-from jaxmac.algos import REGISTRY
-from jaxmac.algos.settings import SCENARIOS
+from envs_jax.validation import has_type, is_integer, parse_value, type_name
+from jaxmac.scenarios import SCENARIOS
 
 COLLECTIONS = ("whole", "first_finished")
-CHOICES: dict[str, tuple[str, ...]] = {"algorithm": tuple(REGISTRY), "collection": COLLECTIONS}
+
+_SETTINGS: dict[str, type] = {}  # learner name -> its settings block class, filled by LearnerSettings subclasses
+
+
+@dataclasses.dataclass(frozen=True)
+class LearnerSettings:
+    """Base of every learner's settings block. A subclass that names its learner registers itself::
+
+        @dataclasses.dataclass(frozen=True)
+        class MySettings(LearnerSettings, algorithm="my_learner"):
+            hidden: int = 64
+
+    ``length_buckets``: whether the learner's update can run on the batch's real length (``TrainConfig.
+    length_buckets`` > 1). ``check_config`` refuses shared settings the learner cannot run with."""
+
+    algorithm: ClassVar[str] = ""
+    supports_length_buckets: ClassVar[bool] = False
+
+    def __init_subclass__(cls, algorithm: str | None = None, length_buckets: bool | None = None, **kwargs):
+        super().__init_subclass__(**kwargs)
+        if length_buckets is not None:
+            cls.supports_length_buckets = length_buckets
+        if algorithm is not None:
+            if algorithm in _SETTINGS and _SETTINGS[algorithm].__qualname__ != cls.__qualname__:
+                raise ValueError(f"learner name {algorithm!r} is taken by {_SETTINGS[algorithm].__qualname__}")
+            cls.algorithm = algorithm
+            _SETTINGS[algorithm] = cls
+
+    def check_config(self, config: "TrainConfig") -> None:
+        """Refuse shared settings this learner cannot honour (called by ``TrainConfig`` after its own checks)."""
+        if config.length_buckets != 1 and not self.supports_length_buckets:
+            raise ValueError(f"length_buckets={config.length_buckets} is not supported by algorithm="
+                             f"{config.algorithm!r} (it always runs the full length: use 1); algorithms with length "
+                             f"buckets: {[n for n, c in _SETTINGS.items() if c.supports_length_buckets]}")
+        self.check_batch_fits_buffer(config)
+
+    def check_batch_fits_buffer(self, config: "TrainConfig") -> None:
+        """A batch of ``batch_size`` stored episodes needs a ring of at least that many."""
+        if config.buffer_episodes < config.batch_size:
+            raise ValueError(f"buffer_episodes={config.buffer_episodes} must be >= batch_size={config.batch_size}")
+
+
+def registered_algorithms() -> tuple[str, ...]:
+    """The learners whose settings blocks are registered (every learner once ``jaxmac.algos.registry`` is imported)."""
+    return tuple(_SETTINGS)
+
+
+def settings_class(algorithm: str) -> type:
+    """The settings block class of ``algorithm`` (a ValueError naming the valid learners otherwise)."""
+    if not _SETTINGS:
+        raise ValueError(f"algorithm={algorithm!r}: no learner is registered yet; import jaxmac.algos.registry (or "
+                         "jaxmac.presets) first, which registers every learner's settings")
+    if algorithm not in _SETTINGS:
+        raise ValueError(f"algorithm={algorithm!r} is not valid; choices: {list(_SETTINGS)}")
+    return _SETTINGS[algorithm]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -63,16 +119,14 @@ class TrainConfig:
     # the full length, one compilation
     length_buckets: int = 1
     # stop a run (keeping its last good checkpoint) when a value learner's mean value estimate leaves the env's
-    # bounds on any discounted return (``jaxmac.run.value_bounds_of``) by more than divergence_margin of the bound;
+    # bounds on any discounted return (``jaxmac.runs.value_bounds_of``) by more than divergence_margin of the bound;
     # rounds outside are flagged in metrics.csv (value_out_of_bounds) either way
     divergence_guard: bool = True
     divergence_margin: float = 0.1
     algo: Any = None  # the algorithm's settings block; None = its defaults
 
     def __post_init__(self):
-        if self.algorithm not in REGISTRY:
-            raise ValueError(f"algorithm={self.algorithm!r} is not valid; choices: {list(REGISTRY)}")
-        settings_cls = REGISTRY[self.algorithm].settings
+        settings_cls = settings_class(self.algorithm)
         if self.algo is None:
             object.__setattr__(self, "algo", settings_cls())
         elif not isinstance(self.algo, settings_cls):
@@ -92,12 +146,8 @@ class TrainConfig:
                      "eps_decay_start", "horizon"):
             if getattr(self, name) < 0:
                 raise ValueError(f"{name}={getattr(self, name)!r} must be >= 0")
-        if not isinstance(self.length_buckets, int) or isinstance(self.length_buckets, bool) or self.length_buckets < 1:
+        if not is_integer(self.length_buckets) or self.length_buckets < 1:
             raise ValueError(f"length_buckets={self.length_buckets!r} must be a positive integer (1 = the full length)")
-        if self.length_buckets != 1 and not REGISTRY[self.algorithm].length_buckets:
-            raise ValueError(f"length_buckets={self.length_buckets} is not supported by algorithm={self.algorithm!r} "
-                             f"(it always runs the full length: use 1); algorithms with length buckets: "
-                             f"{[name for name, entry in REGISTRY.items() if entry.length_buckets]}")
         if not 0.0 <= self.discount <= 1.0:
             raise ValueError(f"discount={self.discount!r} must be in (0, 1] (or 0 = the scenario's own)")
         if not 0.0 < self.lr < 1.0:
@@ -105,8 +155,6 @@ class TrainConfig:
         if not 0.0 <= self.eps_end <= self.eps_start <= 1.0:
             raise ValueError(f"need 0 <= eps_end <= eps_start <= 1, got eps_start={self.eps_start}, "
                              f"eps_end={self.eps_end}")
-        if self.buffer_episodes < self.batch_size and not getattr(self.algo, "trace_len", 0):
-            raise ValueError(f"buffer_episodes={self.buffer_episodes} must be >= batch_size={self.batch_size}")
         if self.grad_clip < 0:
             raise ValueError(f"grad_clip={self.grad_clip!r} must be >= 0 (0 = no clipping)")
         if not (self.divergence_margin >= 0.0 and math.isfinite(self.divergence_margin)):
@@ -115,6 +163,7 @@ class TrainConfig:
         if not 0.0 <= self.target_polyak < 1.0:
             raise ValueError(f"target_polyak={self.target_polyak!r} must be in [0, 1) (0 = hard copies)")
         self._check_target_period()
+        self.algo.check_config(self)
 
     def _check_finite(self) -> None:
         """Every real-valued setting, shared or of the algorithm's block, is a finite number: a NaN or an infinity
@@ -142,28 +191,19 @@ class TrainConfig:
                 f"target network on purpose (a copy after every round)")
 
     # --- overrides ----------------------------------------------------------------------
+    @classmethod
+    def create(cls, algorithm: str, **values: Any) -> "TrainConfig":
+        """A validated configuration of ``algorithm`` from shared and block names alike (unset ones at their
+        defaults), checked once as a whole."""
+        shared, block = _route(algorithm, values)
+        return cls(algorithm=algorithm, algo=settings_class(algorithm)(**block), **shared)
+
     def override(self, **values: Any) -> "TrainConfig":
         """A validated copy with ``values`` replaced: shared fields and fields of this algorithm's block (names
         and types checked). Changing ``algorithm`` starts from the new algorithm's default block."""
-        shared_hints = _shared_hints()
         algorithm = values.pop("algorithm", self.algorithm)
-        if algorithm not in REGISTRY:
-            raise ValueError(f"algorithm={algorithm!r} is not valid; choices: {list(REGISTRY)}")
-        settings_cls = REGISTRY[algorithm].settings
-        algo_hints = typing.get_type_hints(settings_cls)
-        shared, block = {}, {}
-        for key, value in values.items():
-            if key == "algo":
-                raise ValueError("set the algorithm's settings by name (e.g. rnn_size=64), not as algo=")
-            if key in shared_hints:
-                _check_type(key, value, shared_hints[key])
-                shared[key] = value
-            elif key in algo_hints:
-                _check_type(key, value, algo_hints[key])
-                block[key] = value
-            else:
-                raise ValueError(_unknown_key_message(key, algorithm))
-        base = self.algo if algorithm == self.algorithm else settings_cls()
+        shared, block = _route(algorithm, values)
+        base = self.algo if algorithm == self.algorithm else settings_class(algorithm)()
         return dataclasses.replace(self, algorithm=algorithm, algo=dataclasses.replace(base, **block), **shared)
 
     def override_strings(self, assignments: list[str]) -> "TrainConfig":
@@ -187,7 +227,7 @@ class TrainConfig:
         existed, and hard-copy periods of at most one round (read as 0, which runs the same)."""
         values = dict(values)
         algorithm = values.get("algorithm", "tomacvf")
-        settings_cls = REGISTRY[algorithm].settings
+        settings_cls = settings_class(algorithm)
         block = values.pop("algo", None)
         if block is None:  # flat layout: ToMacVF's fields at the top level
             names = {f.name for f in dataclasses.fields(settings_cls)}
@@ -206,6 +246,25 @@ class TrainConfig:
         return cls(**values, algo=settings_cls(**block))
 
 
+def _route(algorithm: str, values: dict[str, Any]) -> tuple[dict[str, Any], dict[str, Any]]:
+    """``values`` split into shared fields and fields of ``algorithm``'s block, each name and type checked."""
+    shared_hints = _shared_hints()
+    algo_hints = _block_hints(settings_class(algorithm))
+    shared, block = {}, {}
+    for key, value in values.items():
+        if key == "algo":
+            raise ValueError("set the algorithm's settings by name (e.g. rnn_size=64), not as algo=")
+        if key in shared_hints:
+            _check_type(key, value, shared_hints[key])
+            shared[key] = value
+        elif key in algo_hints:
+            _check_type(key, value, algo_hints[key])
+            block[key] = value
+        else:
+            raise ValueError(_unknown_key_message(key, algorithm))
+    return shared, block
+
+
 def parse_assignments(assignments: list[str], algorithm: str) -> dict[str, Any]:
     """``key=value`` strings (the CLI's ``--set``) as typed values of the shared fields and ``algorithm``'s block
     (``algorithm=`` among them switches the block); unknown keys and unparsable values are refused."""
@@ -217,13 +276,13 @@ def parse_assignments(assignments: list[str], algorithm: str) -> dict[str, Any]:
             raise ValueError(f"--set expects key=value, got {item!r}")
         values[key] = raw.strip()
     algorithm = values.get("algorithm", algorithm)
-    hints = {**_shared_hints(), **typing.get_type_hints(REGISTRY[algorithm].settings)} if algorithm in REGISTRY \
+    hints = {**_shared_hints(), **_block_hints(_SETTINGS[algorithm])} if algorithm in _SETTINGS \
         else _shared_hints()
     parsed = {}
     for key, raw in values.items():
         if key not in hints:
             raise ValueError(_unknown_key_message(key, algorithm))
-        parsed[key] = _parse(key, raw, hints[key])
+        parsed[key] = parse_value(key, raw, hints[key])
     return parsed
 
 
@@ -233,9 +292,15 @@ def _shared_hints() -> dict[str, Any]:
     return hints
 
 
+def _block_hints(cls: type) -> dict[str, Any]:
+    """The types of a settings block's fields (not its class variables: ``algorithm``, ``supports_length_buckets``)."""
+    hints = typing.get_type_hints(cls)
+    return {f.name: hints[f.name] for f in dataclasses.fields(cls)}
+
+
 def _unknown_key_message(key: str, algorithm: str) -> str:
-    owners = [name for name, entry in REGISTRY.items() if key in typing.get_type_hints(entry.settings)]
-    own = sorted(typing.get_type_hints(REGISTRY[algorithm].settings))
+    owners = [name for name, cls in _SETTINGS.items() if key in _block_hints(cls)]
+    own = sorted(_block_hints(settings_class(algorithm)))
     if owners:
         return (f"config key {key!r} belongs to algorithm(s) {owners}, not to {algorithm!r}; {algorithm}'s own "
                 f"settings: {own}")
@@ -243,18 +308,8 @@ def _unknown_key_message(key: str, algorithm: str) -> str:
 
 
 def _check_type(key: str, value: Any, expected: Any) -> None:
-    if expected is bool:
-        ok = isinstance(value, bool)
-    elif expected is int:
-        ok = isinstance(value, int) and not isinstance(value, bool)
-    elif expected is float:
-        ok = isinstance(value, (int, float)) and not isinstance(value, bool)
-    elif expected is str:
-        ok = isinstance(value, str)
-    else:  # tuple[int, ...]
-        ok = isinstance(value, tuple) and all(isinstance(v, int) and not isinstance(v, bool) for v in value)
-    if not ok:
-        raise ValueError(f"config {key}={value!r} must be of type {getattr(expected, '__name__', expected)}")
+    if not has_type(value, expected):
+        raise ValueError(f"config {key}={value!r} must be of type {type_name(expected)}")
 
 
 def make_env(config: TrainConfig):
@@ -265,86 +320,3 @@ def make_env(config: TrainConfig):
     if config.discount:
         overrides["discount"] = config.discount
     return envs_jax.make(config.scenario, **overrides)
-
-
-def _parse(key: str, raw: str, kind: type) -> Any:
-    try:
-        if kind is bool:
-            if raw.lower() in ("true", "1", "yes"):
-                return True
-            if raw.lower() in ("false", "0", "no"):
-                return False
-            raise ValueError
-        if kind is int:
-            return int(raw.replace("_", ""))
-        if kind is float:
-            return float(raw)
-        if kind is str:
-            return raw
-        return tuple(int(v.replace("_", "")) for v in raw.replace(",", " ").split())  # tuple[int, ...]
-    except ValueError:
-        raise ValueError(f"config {key}={raw!r} is not a valid {getattr(kind, '__name__', kind)}") from None
-
-
-# --- scenarios ------------------------------------------------------------------------------------------
-
-def scenario_config(scenario: str, algorithm: str = "tomacvf", tiny: bool = False, paper: bool = False,
-                    overrides: dict[str, Any] | None = None) -> TrainConfig:
-    """``algorithm``'s configuration of ``scenario`` (optionally shrunk to test size): jaxmac's defaults, which are
-    the original scripts' values except where a learner records changes that make it learn (ToMacVF); ``paper``:
-    the publication's own values. ``overrides`` are applied with the table's values in one validation (a setting
-    that is only valid together with an override, such as the paper's Overcooked target period, can be run)."""
-    if scenario not in SCENARIOS:
-        raise ValueError(f"unknown scenario {scenario!r}; valid scenarios: {list(SCENARIOS)}")
-    if algorithm not in REGISTRY:
-        raise ValueError(f"unknown algorithm {algorithm!r}; valid: {list(REGISTRY)}")
-    entry = REGISTRY[algorithm]
-    table = entry.paper_values if paper and entry.paper_values is not None else entry.scenario_values
-    values = dict(table.get(scenario, {}))
-    if tiny:
-        values.update(TINY, **entry.tiny_values)
-    values.update(overrides or {})
-    return TrainConfig(scenario=scenario, algorithm=algorithm).override(**values)
-
-
-@dataclasses.dataclass(frozen=True)
-class Preset:
-    """A named configuration for ``jaxmac train --preset NAME``: a scenario, a learner, overrides of that learner's
-    scenario settings (the paper's or the original script's), and a seed count; command-line flags apply on top."""
-
-    scenario: str
-    algorithm: str
-    overrides: dict
-    seeds: int
-    about: str
-
-
-PRESETS = {
-    # the README's main command: ToMacVF's curve climbing on Box Pushing 6x6 in a few minutes on a 2-core CPU
-    "quickstart": Preset(
-        "boxpushing-6x6", "tomacvf",
-        dict(episodes=2000, batch_size=32, updates_per_round=4, overestimate_weight=0.3, eps_decay_episodes=1000,
-             eval_every_episodes=50),
-        seeds=2,
-        about="ToMacVF on Box Pushing 6x6, 2,000 episodes: batch 32 (paper 128), 4 gradient steps per round of 16 "
-              "episodes (paper 1), optimistic weighting 0.3 (paper: plain MSE), epsilon decayed over 1,000 episodes "
-              "(paper 4,000)"),
-    # the README's result on Box Pushing 6x6 (mean 263.8 of 270.6 over 8 seeds)
-    "boxpushing-6x6-solved": Preset(
-        "boxpushing-6x6", "tomacvf", dict(episodes=6400, updates_per_round=4, overestimate_weight=0.3), seeds=8,
-        about="ToMacVF on Box Pushing 6x6 with the paper's settings but 4 gradient steps per round and optimistic "
-              "weighting 0.3, 6,400 episodes"),
-}
-
-
-def preset_config(name: str) -> tuple[TrainConfig, Preset]:
-    """The configuration of preset ``name`` (see ``PRESETS``) and the preset itself."""
-    if name not in PRESETS:
-        raise ValueError(f"unknown preset {name!r}; valid presets: {list(PRESETS)}")
-    preset = PRESETS[name]
-    return scenario_config(preset.scenario, preset.algorithm).override(**preset.overrides), preset
-
-
-# Tiny shared settings for tests and smoke runs (seconds, not hours); each algorithm adds its own.
-TINY = dict(episodes=64, num_envs=8, batch_size=8, buffer_episodes=32, eval_every_episodes=32, eval_episodes=2,
-            target_update_episodes=16, eps_decay_episodes=32)

@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import csv
+import json
 import math
+import os
 from collections import defaultdict
 
 import numpy as np
@@ -45,14 +47,33 @@ def mean_and_standard_error(values: np.ndarray) -> tuple[np.ndarray, np.ndarray 
     return mean, values.std(0, ddof=1) / np.sqrt(values.shape[0])
 
 
+def return_label(discount: float | None, what: str = "evaluation return") -> str:
+    """The y-axis label of a return: which measure it is (the curves plot ``eval_disc_return``, Σ_t γ^t r_t)."""
+    if discount is None:
+        return f"{what} (discounted, Σ γ^t r_t)"
+    if discount == 1.0:
+        return f"{what} (γ = 1: undiscounted)"
+    return f"{what} (discounted, γ = {discount:g})"
+
+
+def run_discount(csv_path: str) -> float | None:
+    """The discount of the run whose ``metrics.csv`` this is (its ``summary.json``), None if not written yet."""
+    try:
+        with open(os.path.join(os.path.dirname(os.path.abspath(csv_path)), "summary.json")) as f:
+            value = json.load(f).get("discount")
+    except (OSError, ValueError, AttributeError):
+        return None
+    return float(value) if isinstance(value, (int, float)) and not isinstance(value, bool) else None
+
+
 def plot_curves(curves: list[tuple[str, np.ndarray, np.ndarray]], png_path: str, title: str,
                 optimum: float | None = None, window: int = 10, pdf: bool = False,
-                ylabel: str = "evaluation return (discounted)") -> None:
+                ylabel: str | None = None, discount: float | None = None) -> None:
     """Several learning curves on one axis: for each ``(label, episodes [P], values [seeds, P])`` the mean ± s.e.
     over seeds of the trailing ``window``-point moving average (DECISIONS D15; capped at a tenth of the points, so
     that a short run's last evaluations are not averaged with its first); ``pdf`` also writes a PDF. The
     evaluation return is greedy for the value learners and sampled from the policy for the actor-critics (as
-    their originals evaluate)."""
+    their originals evaluate). The y-axis names the measure: ``ylabel``, else ``return_label(discount)``."""
     from matplotlib.figure import Figure  # its own Agg canvas: never touches pyplot's backend or figure list
 
     points = max((len(episodes) for _, episodes, _ in curves), default=0)
@@ -70,7 +91,7 @@ def plot_curves(curves: list[tuple[str, np.ndarray, np.ndarray]], png_path: str,
     if optimum is not None:
         ax.axhline(optimum, color="k", ls="--", lw=1, label=f"optimal ({optimum:.1f})")
     ax.set_xlabel("training episodes")
-    ax.set_ylabel(ylabel)
+    ax.set_ylabel(ylabel or return_label(discount))
     smoothing = f"{window}-point moving average" if window > 1 else "not smoothed"
     ax.set_title(f"{title}\nmean ± s.e. over seeds, {smoothing}", fontsize=9)
     ax.grid(alpha=0.3)
@@ -88,7 +109,9 @@ def save_figure(fig, png_path: str, pdf: bool = False) -> None:
 
 
 def plot_learning_curve(csv_path: str, png_path: str, title: str, optimum: float | None = None,
-                        window: int = 10, label: str = "greedy return") -> None:
-    """Mean ± s.e. over seeds of the smoothed greedy evaluation return of one run's ``metrics.csv``."""
+                        window: int = 10, label: str = "greedy return", discount: float | None = None) -> None:
+    """Mean ± s.e. over seeds of the smoothed greedy evaluation return (discounted, ``eval_disc_return``) of one
+    run's ``metrics.csv``; the y-axis names γ (``discount``, else the run's ``summary.json`` beside the CSV)."""
     episodes, values = read_eval_curves(csv_path)
-    plot_curves([(label, episodes, values)], png_path, title, optimum, window)
+    discount = run_discount(csv_path) if discount is None else discount
+    plot_curves([(label, episodes, values)], png_path, title, optimum, window, discount=discount)

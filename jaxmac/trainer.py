@@ -36,12 +36,13 @@ from flax import struct
 
 from envs_jax.core import MacroEnv
 from jaxmac.algos.acting import epsilon_schedule
-from jaxmac.algos.base import Algorithm, Progress, sample_episodes
-from jaxmac.seeds import SEED_AXIS, any_seed
+from jaxmac.algos.base import Algorithm, Progress
 from jaxmac.buffer import ring as ring_lib
 from jaxmac.buffer.episode import SlotConfig, empty_slot, write_episode
+from jaxmac.buffer.sources import episode_source
 from jaxmac.collect import episode_returns, run_episodes, run_episodes_first_finished
 from jaxmac.config import TrainConfig
+from jaxmac.seeds import SEED_AXIS, any_seed
 
 
 @struct.dataclass
@@ -94,7 +95,7 @@ def make_train(
         raise ValueError(f"rounds_per_chunk={rounds_per_chunk!r} must be a positive integer")
     slot_config = SlotConfig.from_spec(env.spec)
     optimizer = algorithm.optimizer
-    sample = algorithm.sample or sample_episodes(config.batch_size)
+    sample = algorithm.sample or episode_source(config.batch_size)
     store = algorithm.store
     behaviour = algorithm.behaviour_act or (lambda p, c, ts, k, eps, episodes: algorithm.act(p, c, ts, k, eps))
     gamma = env.spec.discount

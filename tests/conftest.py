@@ -21,7 +21,7 @@ if LLVM_LEVEL_FLAG not in os.environ.get("XLA_FLAGS", ""):
 
 import pytest  # noqa: E402
 
-from jaxmac.run import enable_compilation_cache  # noqa: E402  (imports jax: after XLA_FLAGS)
+from jaxmac.runs import enable_compilation_cache  # noqa: E402  (imports jax: after XLA_FLAGS)
 
 
 @pytest.fixture(scope="session", autouse=True)

@@ -21,10 +21,11 @@ from _value_references import stack
 
 from envs_jax.core import TimeStep
 from jaxmac.algos.families import actor_critic as ac
-from jaxmac.algos import make_algorithm
+from jaxmac.algos.registry import make_algorithm
 from jaxmac.algos.base import Progress, per_part_optimizer
 from jaxmac.scenarios import SCENARIOS
-from jaxmac.config import make_env, scenario_config
+from jaxmac.config import make_env
+from jaxmac.presets import scenario_config
 from jaxmac.algos.families.decentralised import init_agent_drqn
 from jaxmac.ops import MASK_VALUE
 from jaxmac.networks.drqn import DRQN, AgentDRQN, AgentStateCritic, StateCritic
@@ -658,25 +659,26 @@ def test_mac_niacc_naive_advantage_is_the_joint_advantage_at_the_termination(lea
 # --- 7. configuration -------------------------------------------------------------------------------------------
 
 
-def test_check_on_policy_refuses_replay_settings_naming_the_values():
+def test_on_policy_configs_refuse_replay_settings_naming_the_values():
+    """The actor-critics' settings blocks refuse, when the configuration is made (before any tracing), shared settings
+    that would train off-policy."""
     base = scenario_config("boxpushing-6x6", "mac_iaicc", tiny=True)
-    ac.check_on_policy(base, "mac_iaicc")
-    bad = base.override(batch_size=base.num_envs // 2)
     with pytest.raises(ValueError) as err:
-        ac.check_on_policy(bad, "mac_iaicc")
+        base.override(batch_size=base.num_envs // 2)
     message = str(err.value)
-    assert "mac_iaicc" in message and f"batch_size={bad.batch_size}" in message
-    assert f"num_envs={bad.num_envs}" in message
+    assert "mac_iaicc" in message and f"batch_size={base.num_envs // 2}" in message
+    assert f"num_envs={base.num_envs}" in message
+    niacc = scenario_config("boxpushing-6x6", "mac_niacc", tiny=True)
     for name, value in (("train_every_steps", 5), ("start_train_episodes", 3), ("target_update_steps", 100),
                         ("target_polyak", 0.5)):
         with pytest.raises(ValueError) as err:
-            ac.check_on_policy(base.override(**{name: value}), "mac_niacc")
+            niacc.override(**{name: value})
         assert f"{name}={value}" in str(err.value) and "mac_niacc" in str(err.value), str(err.value)
-    for algorithm in ("mac_iaicc", "mac_niacc", "mac_cac"):  # the factories refuse them too
+    for algorithm in ("mac_iaicc", "mac_niacc", "mac_cac"):  # every actor-critic, from a string --set too
         config = scenario_config("boxpushing-6x6", algorithm, tiny=True)
-        for wrong in (config.override(batch_size=config.num_envs // 2), config.override(train_every_steps=5)):
+        for wrong in ([f"batch_size={config.num_envs // 2}"], ["train_every_steps=5"]):
             with pytest.raises(ValueError, match=algorithm):
-                make_algorithm(wrong, make_env(wrong))
+                config.override_strings(wrong)
 
 
 @pytest.mark.parametrize("algorithm", ["mac_iaicc", "mac_niacc", "mac_cac"])
@@ -684,7 +686,7 @@ def test_every_scenario_gives_an_on_policy_config(algorithm):
     for scenario in SCENARIOS:
         for tiny in (False, True):
             config = scenario_config(scenario, algorithm, tiny=tiny)
-            ac.check_on_policy(config, algorithm)
+            config.algo.check_config(config)  # valid: made without an error, and checked again here
             assert config.batch_size == config.num_envs and config.updates_per_round == 1
             assert config.eps_start == 1.0 and config.eps_end < 1.0 and config.algo.n_step >= 1
             if algorithm != "mac_cac":

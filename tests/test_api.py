@@ -15,8 +15,8 @@ import numpy as np
 import pytest
 
 import jaxmac
-from jaxmac.config import scenario_config
-from jaxmac.run import train_run
+from jaxmac.presets import scenario_config
+from jaxmac.runs import train_run
 
 ROOT = os.path.join(os.path.dirname(__file__), "..")
 TINY_RUN = dict(horizon=20, episodes=32, num_envs=8, batch_size=8, buffer_episodes=16, eval_every_episodes=16,

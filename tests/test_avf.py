@@ -15,7 +15,8 @@ from _value_references import step_by_step
 from jaxmac.algos.avf import make_avf
 from jaxmac.algos.base import Progress
 from jaxmac.buffer import episode, windows
-from jaxmac.config import make_env, scenario_config
+from jaxmac.config import make_env
+from jaxmac.presets import scenario_config
 from jaxmac.networks.drqn import AgentDRQN
 from jaxmac.networks.mixers import Mixer, MixerConfig, init_mixer_params, mix_actions
 

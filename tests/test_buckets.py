@@ -16,12 +16,13 @@ from _learner_helpers import episode_slot, random_params
 import envs_jax
 from envs_jax.wrappers import AutoReset
 from jaxmac.algos.families import actor_critic as ac
-from jaxmac.algos import make_algorithm
+from jaxmac.algos.registry import make_algorithm
 from jaxmac.algos.base import Progress
 from jaxmac.buckets import bucket_sizes, packed_row_sizes, run_bucketed
 from jaxmac.seeds import SEED_AXIS, any_seed
 from jaxmac.collect import random_policy, run_episodes_first_finished, select_first_finished
-from jaxmac.config import make_env, scenario_config
+from jaxmac.config import make_env
+from jaxmac.presets import scenario_config
 
 
 def test_bucket_sizes_halve_from_the_full_length_and_refuse_bad_counts():

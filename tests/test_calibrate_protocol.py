@@ -11,7 +11,7 @@ import pytest
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1] / "experiments"))
 from calibrate_protocol import rate_from_run, sweep_cells  # noqa: E402
 
-from jaxmac.sweep import plan  # noqa: E402
+from jaxmac.study.sweep import plan  # noqa: E402
 
 
 def _finished_cell(root, cell, config, wall_seconds):

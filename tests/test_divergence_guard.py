@@ -16,9 +16,9 @@ import pytest
 
 from envs_jax.core import RewardBounds, value_bounds
 from envs_jax.policies import uniform_random_actions
-from jaxmac import run as run_lib
-from jaxmac.config import scenario_config
-from jaxmac.run import OUT_OF_BOUNDS_COLUMN, flag_out_of_bounds, out_of_bounds_message, train_run
+from jaxmac.presets import scenario_config
+from jaxmac.runs import OUT_OF_BOUNDS_COLUMN, flag_out_of_bounds, out_of_bounds_message, train_run
+from jaxmac.runs import loop as run_loop
 
 CONFIG = scenario_config("boxpushing-6x6", tiny=True).override(
     horizon=20, episodes=48, num_envs=8, batch_size=8, buffer_episodes=16, eval_every_episodes=16, eval_episodes=2,
@@ -101,7 +101,7 @@ def test_a_run_outside_the_bounds_is_stopped_keeping_its_last_good_checkpoint(tm
     """Bounds shrunk to ±1e-9 around 0 (any trained value estimate is outside them): the first round with a
     gradient step (the second: training starts at 16 stored episodes) is flagged and the run stops before
     checkpointing it."""
-    monkeypatch.setattr(run_lib, "value_bounds_of", lambda config, env: (-1e-9, 1e-9))
+    monkeypatch.setattr(run_loop, "value_bounds_of", lambda config, env: (-1e-9, 1e-9))
     out = tmp_path / "div"
     with pytest.raises(RuntimeError, match=r"value estimate diverged at seed \d, round 1 \(episode 16\): "
                                            r"q_tot_mean = .* outside the value bounds \[-1e-09, 1e-09\].*--resume"):
@@ -117,7 +117,7 @@ def test_a_run_outside_the_bounds_is_stopped_keeping_its_last_good_checkpoint(tm
 
 
 def test_with_the_guard_off_a_run_outside_the_bounds_trains_on_flagged(tmp_path, monkeypatch):
-    monkeypatch.setattr(run_lib, "value_bounds_of", lambda config, env: (-1e-9, 1e-9))
+    monkeypatch.setattr(run_loop, "value_bounds_of", lambda config, env: (-1e-9, 1e-9))
     summary = train_run(CONFIG.override(divergence_guard=False), 1, str(tmp_path / "off"), rounds_per_chunk=2,
                         progress=False)
     rows = _rows(tmp_path / "off")
@@ -142,7 +142,7 @@ def test_a_target_copied_after_every_round_is_refused_naming_both_values(period,
 
 
 def test_a_period_of_zero_copies_the_target_after_every_round():
-    from jaxmac.algos import make_algorithm
+    from jaxmac.algos.registry import make_algorithm
     from jaxmac.config import make_env
     from jaxmac.trainer import make_train
 

@@ -9,9 +9,9 @@ import json
 import numpy as np
 import pytest
 
-from jaxmac import run as run_lib
-from jaxmac.config import scenario_config
-from jaxmac.run import check_finite, resume_run, train_run
+from jaxmac.presets import scenario_config
+from jaxmac.runs import check_finite, resume_run, train_run
+from jaxmac.runs import loop as run_loop
 
 CONFIG = scenario_config("boxpushing-6x6", "maccen_ddrqn", tiny=True).override(horizon=20, episodes=48, num_envs=8)
 
@@ -50,18 +50,18 @@ def test_every_reported_metric_is_a_column(finished):
 def test_a_diverging_run_stops_and_continues_with_other_settings(tmp_path, monkeypatch):
     out = tmp_path / "div"
     calls = {"n": 0}
-    real = run_lib.check_finite
+    real = run_loop.check_finite
 
     def diverge_on_second_chunk(metrics, seed_ids, first_round):
         calls["n"] += 1
         return "seed 1, round 3: loss = nan" if calls["n"] == 2 else real(metrics, seed_ids, first_round)
 
-    monkeypatch.setattr(run_lib, "check_finite", diverge_on_second_chunk)
+    monkeypatch.setattr(run_loop, "check_finite", diverge_on_second_chunk)
     with pytest.raises(RuntimeError, match="diverged at seed 1, round 3: loss = nan.*--resume"):
         train_run(CONFIG, 2, str(out), rounds_per_chunk=2, progress=False, checkpoint_seconds=0.0)
     record = json.loads((out / "diverged.json").read_text())
     assert record["last_good_checkpoint"] == 1  # the diverged chunk was not saved
-    monkeypatch.setattr(run_lib, "check_finite", real)
+    monkeypatch.setattr(run_loop, "check_finite", real)
     with pytest.raises(ValueError, match="belongs to"):  # a bad setting is refused before anything changes
         resume_run(str(out), progress=False, assignments=["overestimate_weight=0.5"])
     summary = resume_run(str(out), progress=False, assignments=["lr=0.0005"])

@@ -13,11 +13,12 @@ from _value_references import stack
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from jaxmac.algos import make_algorithm
+from jaxmac.algos.registry import make_algorithm
 from jaxmac.algos.base import Progress
 from jaxmac.algos.tomacvf import network_configs
 from jaxmac.buffer import packing
-from jaxmac.config import make_env, scenario_config
+from jaxmac.config import make_env
+from jaxmac.presets import scenario_config
 from jaxmac.networks import Mixer, TemporalAgentNet, initial_carry, slot_inputs
 from jaxmac.networks.inputs import NetInputs
 

@@ -12,7 +12,7 @@ SCRIPT = r"""
 import csv, os, sys
 import matplotlib
 before = matplotlib.get_backend()
-import jaxmac.evaluate
+import jaxmac.runs.evaluation
 import jaxmac.plotting
 
 out = sys.argv[1]
@@ -24,7 +24,7 @@ with open(metrics, "w", newline="") as f:
         for k in range(12):
             w.writerow([seed, 50 * k, float(k + seed)])
 jaxmac.plotting.plot_learning_curve(metrics, os.path.join(out, "curve.png"), "fake run", 12.0, label="greedy return")
-jaxmac.evaluate.save_strip([f"step {t}\n.#.\n#.#" for t in range(5)], os.path.join(out, "strip.png"))
+jaxmac.runs.evaluation.save_strip([f"step {t}\n.#.\n#.#" for t in range(5)], os.path.join(out, "strip.png"))
 print("BACKENDS", before, matplotlib.get_backend())
 print("PYPLOT", "matplotlib.pyplot" in sys.modules)
 """

@@ -1,14 +1,15 @@
-"""The results page of a sweep from tiny fake run folders: figure, tables, "not run" cells, aggregates."""
+"""The results page of a sweep from tiny fake run folders: figure, tables, "not run" cells, aggregates, and what a
+page of fewer than 2 seeds per cell refuses to say (``jaxmac results``)."""
 
 from __future__ import annotations
 
-import sys
+import json
 import pathlib
+import re
 
 from test_stats import _fake_run
 
-sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1] / "experiments"))
-from results_page import write_page  # noqa: E402
+from jaxmac.study.results_page import write_page
 
 
 def test_results_page_from_run_folders(tmp_path):
@@ -80,3 +81,107 @@ def test_the_mixer_question_names_the_winner_told_apart(tmp_path):
     mixer_answer = page.split("**4. Which mixer")[1].split("## mixers")[0]
     assert "- overcooked-A: **ToMacVF_QMIX**; the others told apart below it" in mixer_answer
     assert "- Verdict: ToMacVF_QMIX is best and told apart from the other three on 1 of 1 scenarios." in mixer_answer
+
+
+_ABLATION = (("tomacvf", 140.0), ("tomacvf-wo-atpg", 100.0), ("tomacvf-wo-sjert", 90.0), ("tomacvf-wo-both", 60.0))
+_EVERY_EXPERIMENT = ["bp", "warehouse", "overcooked", "ablation", "mixers"]
+
+
+def _ablation_sweep(sweep: pathlib.Path, first: int, points: int = 12, skip: tuple[str, str] | None = None) -> None:
+    """One seed (``first``) of each ablation cell, a range folder ``seeds<first>-<first + 1>`` per cell."""
+    for s in ("overcooked-B", "warehouse-E"):
+        for m, base in _ABLATION:
+            if (s, m) != skip:
+                _fake_run(sweep / s / m / f"seeds{first}-{first + 1}", first, [base + 10 * first], points=points)
+
+
+def test_a_one_seed_sweep_names_no_winner_and_says_why(tmp_path, monkeypatch):
+    import jaxmac.study.results_page as results_page
+
+    figures = {}
+    real_save = results_page.save_figure
+    monkeypatch.setattr(results_page, "save_figure",
+                        lambda fig, path, pdf=False: (figures.__setitem__(path, fig), real_save(fig, path, pdf)))
+    sweep = tmp_path / "smoke"  # the folder jaxmac sweep --protocol smoke writes by default
+    _ablation_sweep(sweep, 0, points=1)
+    page = pathlib.Path(write_page(str(sweep), str(tmp_path / "out"), _EVERY_EXPERIMENT)).read_text()
+    head = page.split("## Headline")[0]
+    # the header: the protocol and where it was read, the finished cells, their seeds and budgets, the unrun
+    assert "**Protocol: smoke** (the sweep folder's name): 1 seed, 32 episodes, tiny networks" in head
+    assert "**Finished cells: 8** of the 109 this protocol plans" in head
+    assert "**seeds per cell: 1**; episodes per seed: 96 on every cell." in head
+    assert "Not run (no finished cell): bp." in head and "## bp" not in page and "| bp |" not in page
+    assert "every finished cell has fewer than 2 seeds" in head
+    assert "a winner, an interval and a test need at least 2 seeds per method" in head
+    # no winner, no test, no interval, no bold "best" anywhere; one reason per scenario instead
+    assert "who wins" not in page.lower() and "**140.0" not in page
+    assert "(p " not in page and not re.search(r"\| (\d\.\d{3}|<0\.001) \|", page)
+    assert "| ToMacVF w/o ATPG | 1 | 96 | 100.0 | n = 1: no interval | 67 % | n = 1: no test | 0 min |" in page
+    reason = "No winner, interval or test here: every method has one seed, and a winner and a test need at least 2 "
+    assert page.split("## ablation")[1].count(reason) == 2
+    # the paper's questions: not answered; aggregates: not computed
+    assert "- overcooked-B: not answered: fewer than 2 seeds (ToMacVF 1, ToMacVF w/o ATPG 1)" in page
+    assert page.count("- Verdict: not answered: fewer than 2 seeds.") == 2
+    assert "Aggregates: not computed: some cells have fewer than 2 seeds" in page
+    # scenarios no method has finished: one line, not tables or headline rows of "…"
+    assert "No method has finished on warehouse-A, warehouse-B, warehouse-C, warehouse-D yet." in page
+    assert "| warehouse | warehouse-A |" not in page and "**warehouse-A**" not in page
+    # one evaluation point per curve: markers, not invisible one-point lines
+    ax = figures[str(tmp_path / "out" / "ablation") + ".png"].axes[0]
+    assert [(c.get_label(), c.lines[0].get_marker()) for c in ax.containers] == [
+        ("ToMacVF", "o"), ("ToMacVF w/o ATPG", "o"), ("ToMacVF w/o Mac-SJERT", "o"),
+        ("ToMacVF w/o ATPG and Mac-SJERT", "o")]
+
+
+def test_a_second_seed_brings_the_winner_and_the_tests_back(tmp_path):
+    sweep = tmp_path / "smoke"
+    _ablation_sweep(sweep, 0)
+    _ablation_sweep(sweep, 1, skip=("warehouse-E", "tomacvf-wo-atpg"))  # that cell keeps one seed
+    page = pathlib.Path(write_page(str(sweep), str(tmp_path / "out"), ["ablation"])).read_text()
+    head = page.split("## Headline")[0]
+    assert "**Finished cells: 8** of the 8 this protocol plans" in head
+    assert "**seeds per cell: 1–2 (min–max)**" in head and "1 of 8 cells have fewer than 2 seeds" in head
+    overcooked_b, warehouse_e = page.split("## ablation")[1].split("**warehouse-E**")
+    # two seeds 10 apart each: 145 vs 105 gives Welch p ≈ 0.03 (as in test_results_page_from_run_folders)
+    assert "Who wins: **ToMacVF**; every other method is below it (Welch's p < 0.05)." in overcooked_b
+    assert "| ToMacVF w/o ATPG | 2 | 96 | 105.0 ± 5.0 | [100.0, 110.0] | 70 % | 0.030 | 0 min |" in overcooked_b
+    assert "Who wins" not in warehouse_e.split("Aggregates")[0]
+    assert "No winner, interval or test here: ToMacVF w/o ATPG has one seed" in warehouse_e
+    assert "| ToMacVF w/o Mac-SJERT | 2 | 96 | 95.0 ± 5.0 | [90.0, 100.0] | 9 % | 0.019 | 0 min |" in warehouse_e
+    questions = page.split("**2. Does ATPG help?**")[1].split("**3.")[0]
+    assert "- overcooked-B: +40.0 (p 0.030)" in questions
+    assert "- warehouse-E: not answered: fewer than 2 seeds (ToMacVF 2, ToMacVF w/o ATPG 1)" in questions
+    assert "- Verdict: ToMacVF above ToMacVF w/o ATPG, told apart, on 1 of 1 scenarios" in questions
+    assert "| ablation | overcooked-B | **145.0 (97 %)** |" in page and "| ablation | warehouse-E | 145.0" in page
+
+
+def test_the_protocol_is_read_from_the_cells_configurations(tmp_path):
+    from jaxmac.study.results_page import find_protocol
+    from jaxmac.study.stats import load_sweep
+    from jaxmac.study.sweep import plan
+
+    sweep = tmp_path / "my-sweep"
+    cell = next(c for c in plan("ablation", "smoke") if c.path == "overcooked-B/tomacvf/seeds0-1")
+    _fake_run(sweep / cell.path, 0, [140.0], budget=cell.episodes)
+    assert find_protocol(str(sweep), load_sweep(str(sweep)))[0] is None  # no configuration to read
+    (sweep / cell.path / "config.json").write_text(json.dumps({"config": cell.config().to_dict()}))
+    assert find_protocol(str(sweep), load_sweep(str(sweep))) == ("smoke", "the cells' configurations match it")
+    page = pathlib.Path(write_page(str(sweep), str(tmp_path / "out"), ["ablation"])).read_text()
+    assert "**Protocol: smoke** (the cells' configurations match it)" in page
+
+
+def test_jaxmac_results_writes_beside_the_sweep_by_default(tmp_path, capsys):
+    from jaxmac.cli import main
+
+    sweep = tmp_path / "smoke"
+    _ablation_sweep(sweep, 0)
+    assert main(["results", str(sweep), "--out", str(tmp_path / "page"), "--experiments", "ablation"]) == 0
+    assert f"wrote {tmp_path / 'page' / 'RESULTS.md'}" in capsys.readouterr().out
+    assert "**Protocol: smoke**" in (tmp_path / "page" / "RESULTS.md").read_text()
+    # default: SWEEP_DIR/results, outside the package tree; a second run reads the sweep with its page inside
+    for _ in range(2):
+        assert main(["results", str(sweep), "--experiments", "ablation"]) == 0
+        assert f"wrote {sweep / 'results' / 'RESULTS.md'}" in capsys.readouterr().out
+    assert (sweep / "results" / "ablation.png").exists()
+    assert main(["results", str(tmp_path / "nowhere")]) == 2
+    assert "no such sweep folder" in capsys.readouterr().err

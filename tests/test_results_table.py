@@ -1,19 +1,14 @@
-"""experiments/results_table.py: mean, standard error, fraction of optimal and changed settings per run."""
+"""``jaxmac table`` (jaxmac/study/results_table.py): mean, standard error, fraction of optimal and changed settings
+per run."""
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import pathlib
 
-import pytest
-
-from jaxmac.config import scenario_config
-
-_SPEC = importlib.util.spec_from_file_location(
-    "results_table", pathlib.Path(__file__).parents[1] / "experiments" / "results_table.py")
-results_table = importlib.util.module_from_spec(_SPEC)
-_SPEC.loader.exec_module(results_table)
+from jaxmac.cli import main
+from jaxmac.presets import scenario_config
+from jaxmac.study import results_table
 
 
 def _fake_run(path: pathlib.Path, returns: list[float], **changes) -> pathlib.Path:
@@ -50,7 +45,12 @@ def test_a_baseline_is_compared_with_its_own_defaults(tmp_path):
     assert cells[1] == "maccen_ddrqn" and cells[8] == "rnn_size=32"
 
 
-def test_unfinished_run_is_named(tmp_path):
+def test_jaxmac_table_prints_the_rows_and_names_an_unfinished_run(tmp_path, capsys):
+    a = _fake_run(tmp_path / "a", [260.0, 270.0])
+    assert main(["table", str(a)]) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert out[0].startswith("| scenario | algorithm |") and out[2].startswith("| boxpushing-6x6 | tomacvf | 2 |")
     (tmp_path / "half").mkdir()
-    with pytest.raises(SystemExit, match="half"):
-        results_table.main([str(tmp_path / "half")])
+    assert main(["table", str(a), str(tmp_path / "half")]) == 2
+    err = capsys.readouterr().err
+    assert "no summary.json (run not finished?) in" in err and "half" in err and str(a) not in err

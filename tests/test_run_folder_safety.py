@@ -21,10 +21,10 @@ import sys
 
 import pytest
 
-from jaxmac import run as run_lib
 from jaxmac.cli import main
-from jaxmac.config import scenario_config
-from jaxmac.run import RunFolderBusy, load_run, lock_run_folder, resume_run, train_run
+from jaxmac.presets import scenario_config
+from jaxmac.runs import LOCK_FILE, RunFolderBusy, load_run, lock_run_folder, resume_run, train_run
+from jaxmac.runs import loop as run_loop
 
 CONFIG = scenario_config("boxpushing-6x6", tiny=True).override(
     horizon=20, episodes=48, num_envs=8, batch_size=8, buffer_episodes=16, eval_every_episodes=16, eval_episodes=2,
@@ -100,14 +100,14 @@ def _cli(*args):
 
 def _when_the_first_chunk_is_done(monkeypatch, action):
     """Run ``action`` once, while the run trains (after its first chunk)."""
-    real, seen = run_lib.check_finite, []
+    real, seen = run_loop.check_finite, []
 
     def hook(*args):
         if not seen:
             seen.append(action())
         return real(*args)
 
-    monkeypatch.setattr(run_lib, "check_finite", hook)
+    monkeypatch.setattr(run_loop, "check_finite", hook)
     return seen
 
 
@@ -123,7 +123,7 @@ def test_a_second_training_into_a_folder_in_use_is_refused_and_the_first_run_is_
     line = _one_line(second[0].stderr)
     assert f"{out} is in use by jaxmac train (pid {os.getpid()} on host" in line
     _same_run(out, reference, summary)
-    assert not (out / run_lib.LOCK_FILE).exists()  # released (and removed) when the run ended
+    assert not (out / LOCK_FILE).exists()  # released (and removed) when the run ended
 
 
 def test_concurrent_resumes_are_refused_and_the_run_ends_as_an_uninterrupted_one(
@@ -139,7 +139,7 @@ def test_concurrent_resumes_are_refused_and_the_run_ends_as_an_uninterrupted_one
 def test_a_lock_is_taken_over_when_its_holder_dies_and_is_reentrant_in_its_process(tmp_path):
     out = tmp_path / "run"
     holder = subprocess.Popen([sys.executable, "-c", (
-        "import sys, time\nfrom jaxmac.run import lock_run_folder\n"
+        "import sys, time\nfrom jaxmac.runs import lock_run_folder\n"
         "lock = lock_run_folder(sys.argv[1])\nprint('locked', flush=True)\ntime.sleep(120)"), str(out)],
         stdout=subprocess.PIPE, text=True)
     try:
@@ -149,17 +149,17 @@ def test_a_lock_is_taken_over_when_its_holder_dies_and_is_reentrant_in_its_proce
     finally:
         holder.send_signal(signal.SIGKILL)
         holder.wait()
-    assert (out / run_lib.LOCK_FILE).exists()  # the dead holder's file stays, and blocks nothing
+    assert (out / LOCK_FILE).exists()  # the dead holder's file stays, and blocks nothing
     with lock_run_folder(str(out)) as first:
         with lock_run_folder(str(out)):  # the same process again: a sweep's cell, then the run inside it
             pass
-        assert first and json.loads((out / run_lib.LOCK_FILE).read_text())["pid"] == os.getpid()
-    assert not (out / run_lib.LOCK_FILE).exists()
+        assert first and json.loads((out / LOCK_FILE).read_text())["pid"] == os.getpid()
+    assert not (out / LOCK_FILE).exists()
 
 
 def _fake_runs(monkeypatch, calls):
     """train_run / resume_run that only write the files a run folder would have."""
-    import jaxmac.run
+    import jaxmac.runs
 
     def train_run(config, seeds, out, seed_offset=0, **kw):
         with lock_run_folder(out):  # as the real one: the sweep's own lock is taken again
@@ -168,21 +168,21 @@ def _fake_runs(monkeypatch, calls):
             open(os.path.join(out, "summary.json"), "w").write("{}")
             calls.append(("train", out))
 
-    monkeypatch.setattr(jaxmac.run, "train_run", train_run)
-    monkeypatch.setattr(jaxmac.run, "resume_run", lambda out, **kw: calls.append(("resume", out)))
+    monkeypatch.setattr(jaxmac.runs, "train_run", train_run)  # where jaxmac.study.sweep looks them up
+    monkeypatch.setattr(jaxmac.runs, "resume_run", lambda out, **kw: calls.append(("resume", out)))
 
 
 def test_a_sweep_cell_is_left_to_a_live_holder_and_taken_over_when_it_died_or_its_lock_file_is_stale(
         tmp_path, monkeypatch):
-    from jaxmac.run import LOCK_FILE as LOCK
-    from jaxmac.sweep import plan, run_sweep
+    from jaxmac.runs import LOCK_FILE as LOCK
+    from jaxmac.study.sweep import plan, run_sweep
 
     calls = []
     _fake_runs(monkeypatch, calls)
     cells = plan("ablation", "smoke", only="overcooked-B/")[:3]
     held, reused_pid, empty = (tmp_path / c.path for c in cells)
     holder = subprocess.Popen([sys.executable, "-c", (
-        "import sys, time\nfrom jaxmac.sweep import claim_cell\n"
+        "import sys, time\nfrom jaxmac.study.sweep import claim_cell\n"
         "lock = claim_cell(sys.argv[1])\nprint('locked', flush=True)\ntime.sleep(120)"), str(held)],
         stdout=subprocess.PIPE, text=True)
     try:

@@ -9,14 +9,15 @@ import textwrap
 
 import pytest
 
-from jaxmac.run import seed_sharding
+from jaxmac.runs import seed_sharding
 
 # Run in a fresh interpreter: the host must be split into 2 devices before JAX starts its backend.
 SCRIPT = textwrap.dedent("""
     import jax, jax.numpy as jnp, numpy as np
-    from jaxmac.algos import make_algorithm
-    from jaxmac.config import make_env, scenario_config
-    from jaxmac.run import seed_sharding
+    from jaxmac.algos.registry import make_algorithm
+    from jaxmac.config import make_env
+    from jaxmac.presets import scenario_config
+    from jaxmac.runs import seed_sharding
     from jaxmac.trainer import make_train
 
     assert jax.device_count() == 2, jax.devices()

@@ -10,7 +10,7 @@ import pytest
 from scipy import stats as sps
 
 from jaxmac.scenarios import CEILINGS
-from jaxmac.stats import (aggregate, bootstrap_ci, compare_methods, final_returns, load_sweep, welch_p,
+from jaxmac.study.stats import (aggregate, bootstrap_ci, compare_methods, final_returns, load_sweep, welch_p,
                           who_wins)
 
 
@@ -39,7 +39,7 @@ def test_bootstrap_interval_brackets_the_mean():
 
 
 def _cell(scenario, method, finals):
-    from jaxmac.stats import CellResult
+    from jaxmac.study.stats import CellResult
 
     finals = np.asarray(finals, float)
     return CellResult(scenario, method, list(range(len(finals))), finals, np.arange(3), finals[:, None] * np.ones(3),
@@ -135,7 +135,7 @@ def test_warehouse_is_compared_on_undiscounted_returns_whatever_gamma_a_run_lear
 
 
 def test_episodes_to_fraction_finds_the_first_smoothed_crossing_per_seed():
-    from jaxmac.stats import episodes_to_fraction
+    from jaxmac.study.stats import episodes_to_fraction
 
     episodes = np.arange(1, 8) * 100
     curves = np.array([[0, 0, 10, 10, 10, 10, 10],    # trailing means over 2: 0 0 5 10 ...

@@ -7,8 +7,8 @@ import os
 
 import pytest
 
-import jaxmac.run
-from jaxmac.sweep import EXPERIMENTS, cell_status, plan, run_sweep
+import jaxmac.runs
+from jaxmac.study.sweep import EXPERIMENTS, cell_status, plan, run_sweep
 
 
 def test_the_experiments_have_the_papers_cells():
@@ -31,8 +31,8 @@ def test_the_experiments_have_the_papers_cells():
 
 
 def test_tuned_tomacvf_changes_only_its_settings_per_scenario_and_family():
-    from jaxmac.config import scenario_config
-    from jaxmac.sweep import method_by_name
+    from jaxmac.presets import scenario_config
+    from jaxmac.study.sweep import method_by_name
 
     tuned = method_by_name("tomacvf-tuned")
     expected = {"boxpushing-6x6": {"overestimate_weight": 0.3, "updates_per_round": 4},
@@ -47,8 +47,8 @@ def test_tuned_tomacvf_changes_only_its_settings_per_scenario_and_family():
 
 
 def test_the_paper_method_runs_the_publications_table():
-    from jaxmac.config import scenario_config
-    from jaxmac.sweep import method_by_name
+    from jaxmac.presets import scenario_config
+    from jaxmac.study.sweep import method_by_name
 
     paper = method_by_name("tomacvf-paper")
     own = scenario_config("overcooked-B").flat_dict()
@@ -85,8 +85,8 @@ def _fake_runs(monkeypatch, calls):
         open(os.path.join(out, "summary.json"), "w").write("{}")
         calls.append(("resume", out))
 
-    monkeypatch.setattr(jaxmac.run, "train_run", train_run)
-    monkeypatch.setattr(jaxmac.run, "resume_run", resume_run)
+    monkeypatch.setattr(jaxmac.runs, "train_run", train_run)  # where jaxmac.study.sweep looks them up
+    monkeypatch.setattr(jaxmac.runs, "resume_run", resume_run)
 
 
 def test_finished_cells_are_skipped_and_interrupted_ones_resumed(tmp_path, monkeypatch):
@@ -123,7 +123,7 @@ def test_a_real_cell_runs_then_is_skipped(tmp_path):
 
 
 def test_cost_estimates_use_the_cells_own_rate_else_the_nearest_measured_scenario():
-    from jaxmac.sweep import estimate_seconds, method_by_name
+    from jaxmac.study.sweep import estimate_seconds, method_by_name
 
     rates = {"tomacvf@boxpushing-6x6": {"episodes_per_s": 20.0},
              "tomacvf@boxpushing-14x14": {"episodes_per_s": 5.0},
@@ -142,8 +142,8 @@ def test_cost_estimates_use_the_cells_own_rate_else_the_nearest_measured_scenari
 
 
 def test_the_cpu_protocol_shortens_budgets_and_schedules_in_proportion_and_says_what_it_leaves_out():
-    from jaxmac.config import scenario_config
-    from jaxmac.sweep import not_run_cells
+    from jaxmac.presets import scenario_config
+    from jaxmac.study.sweep import not_run_cells
 
     cells = {c.path.split("/seeds")[0]: c for c in plan("overcooked", "cpu")}
     cell = cells["overcooked-A/tomacvf"]

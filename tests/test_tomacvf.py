@@ -13,13 +13,14 @@ import optax
 import pytest
 from _buffer_fixtures import config_for, synthetic_rollout
 
-from jaxmac.algos import make_algorithm
+from jaxmac.algos.registry import make_algorithm
 from jaxmac.algos.base import Progress
 from jaxmac.buffer import episode
 from jaxmac.buffer import ring as ring_lib
-from jaxmac.config import make_env, scenario_config
+from jaxmac.config import make_env
+from jaxmac.presets import scenario_config
 from jaxmac.networks import jert_sequence, slot_inputs
-from jaxmac.run import finish_run, load_run, placed, resume_run, train_run
+from jaxmac.runs import finish_run, load_run, placed, resume_run, train_run
 from jaxmac.trainer import make_train
 
 TINY = scenario_config("boxpushing-6x6", tiny=True).override(
@@ -222,7 +223,7 @@ def test_cli_resume_refuses_options_it_would_ignore(tmp_path, capsys):
 def test_cli_seeds_are_a_count_or_a_range_and_reach_the_run(monkeypatch, capsys):
     import argparse
 
-    import jaxmac.run
+    import jaxmac.runs
     from jaxmac.cli import main, seed_range
 
     assert seed_range("4") == (0, 4) and seed_range("4:8") == (4, 4) and seed_range("0:1") == (0, 1)
@@ -230,7 +231,7 @@ def test_cli_seeds_are_a_count_or_a_range_and_reach_the_run(monkeypatch, capsys)
         with pytest.raises(argparse.ArgumentTypeError, match="--seeds"):
             seed_range(bad)
     calls = []
-    monkeypatch.setattr(jaxmac.run, "train_run", lambda config, seeds, out, **kw: calls.append((seeds, kw)))
+    monkeypatch.setattr(jaxmac.runs, "train_run", lambda config, seeds, out, **kw: calls.append((seeds, kw)))
     assert main(["train", "--tiny", "--seeds", "4:8", "--out", "unused", "--no-progress"]) == 0
     assert calls[0][0] == 4 and calls[0][1]["seed_offset"] == 4
     assert main(["train", "--tiny", "--seeds", "3", "--out", "unused", "--no-progress"]) == 0
@@ -242,7 +243,7 @@ def test_cli_seeds_are_a_count_or_a_range_and_reach_the_run(monkeypatch, capsys)
 
 def test_presets_are_the_scenario_settings_with_their_overrides_and_refuse_what_they_fix(capsys):
     from jaxmac.cli import main
-    from jaxmac.config import PRESETS, preset_config
+    from jaxmac.presets import PRESETS, preset_config
 
     for name, preset in PRESETS.items():
         config, _ = preset_config(name)
@@ -266,7 +267,7 @@ def test_config_errors_name_the_value():
 
 @pytest.mark.parametrize("scenario,default", [("boxpushing-6x6", 0.98), ("overcooked-A", 0.99), ("warehouse-A", 1.0)])
 def test_discount_override_reaches_the_env_and_the_replay_slots(scenario, default):
-    from jaxmac.algos import make_algorithm
+    from jaxmac.algos.registry import make_algorithm
     from jaxmac.config import make_env
     from jaxmac.trainer import make_train
 

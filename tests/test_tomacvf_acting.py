@@ -10,9 +10,10 @@ import numpy as np
 import pytest
 from _learner_helpers import assert_frequencies, random_params
 
-from jaxmac.algos import make_algorithm
+from jaxmac.algos.registry import make_algorithm
 from jaxmac.algos.tomacvf import network_configs
-from jaxmac.config import make_env, scenario_config
+from jaxmac.config import make_env
+from jaxmac.presets import scenario_config
 from jaxmac.networks import TemporalAgentNet, initial_carry, timestep_inputs
 from jaxmac.ops import masked_argmax
 

@@ -37,11 +37,12 @@ import pytest
 from _buffer_fixtures import synthetic_rollout
 from _learner_helpers import random_params
 
-from jaxmac.algos import make_algorithm
+from jaxmac.algos.registry import make_algorithm
 from jaxmac.algos.base import Progress
 from jaxmac.algos.tomacvf import network_configs
 from jaxmac.buffer.episode import SlotConfig, write_episode
-from jaxmac.config import make_env, scenario_config
+from jaxmac.config import make_env
+from jaxmac.presets import scenario_config
 from jaxmac.networks import Mixer, NetInputs, TemporalAgentNet
 
 H, GAMMA = 12, 0.9

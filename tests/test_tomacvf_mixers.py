@@ -23,7 +23,8 @@ from _learner_helpers import episode_slot, random_params
 
 from jaxmac.algos.base import Progress
 from jaxmac.algos.tomacvf import conditional_target, make_tomacvf
-from jaxmac.config import make_env, scenario_config
+from jaxmac.config import make_env
+from jaxmac.presets import scenario_config
 from jaxmac.networks.mixers import Mixer, MixerConfig, init_mixer_params, mix_actions, qtran_penalties
 from jaxmac.trainer import make_train
 

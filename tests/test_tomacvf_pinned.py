@@ -15,8 +15,9 @@ import jax
 import numpy as np
 import pytest
 
-from jaxmac.algos import make_algorithm
-from jaxmac.config import make_env, scenario_config
+from jaxmac.algos.registry import make_algorithm
+from jaxmac.config import make_env
+from jaxmac.presets import scenario_config
 from jaxmac.trainer import make_train
 
 PINNED = pathlib.Path(__file__).parent / "data" / "tomacvf_pinned.json"

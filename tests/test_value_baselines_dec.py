@@ -15,10 +15,11 @@ from _value_references import available_argmax, brute_force_conditional_argmax, 
 import envs_jax
 from jaxmac import trainer
 from jaxmac.algos.families import centralised, decentralised
-from jaxmac.algos import REGISTRY, make_algorithm
+from jaxmac.algos.registry import REGISTRY, make_algorithm
 from jaxmac.algos.base import Progress
 from jaxmac.buffer import views, windows
-from jaxmac.config import make_env, scenario_config
+from jaxmac.config import make_env
+from jaxmac.presets import scenario_config
 from jaxmac.networks.drqn import DRQN, AgentDRQN
 
 H, GAMMA, L = 24, 0.9, 5

@@ -7,7 +7,7 @@ import json
 
 import pytest
 
-from jaxmac.workers import merge, split_seeds
+from jaxmac.runs.workers import merge, split_seeds
 
 
 def test_split_seeds_covers_every_seed_once():

@@ -124,6 +124,13 @@ class Overcooked(MacroEnv[OvercookedState]):
         """int32[3, 7, 7] each agent's belief map (SPEC §6)."""
         return world.belief_maps(self.layout, state.core).reshape(-1, layouts.N, layouts.N)
 
+    @property
+    def render_legend(self) -> tuple[tuple[str, str], ...]:
+        """What ``render`` prints, symbol by symbol: (symbol, meaning) pairs."""
+        from envs_jax.overcooked.render import RENDER_LEGEND
+
+        return RENDER_LEGEND
+
     def render(self, state: EnvState) -> str:
         from envs_jax.overcooked.render import render
 

@@ -15,6 +15,21 @@ from envs_jax.overcooked.layouts import AGENT0_K, DELIVERY, KNIFE, N_AGENTS, N_I
 
 _FOOD = "tlo"
 
+# What ``render`` prints, symbol by symbol: (symbol, meaning) pairs (``jaxmac rollout`` prints them).
+RENDER_LEGEND = (
+    ("#", "counter (items can be put on it)"),
+    (".", "floor"),
+    ("0..6", "row numbers x (left) and column numbers y (top): a cell is (x, y)"),
+    ("K1 K2", "knife 1 / knife 2; an item lying on a knife follows it (K1t2)"),
+    ("D", "delivery counter; an item on it follows it (DP1{lot})"),
+    ("t l o", "tomato, lettuce, onion, followed by their chop count (t3 = chopped tomato)"),
+    ("P1 P2", "plate 1 / plate 2"),
+    ("P1{lt}", "a plate and, in braces, the foods on it (letters only)"),
+    ("A1 A2 A3", "the agents"),
+    ("A2[t3]", "an agent and, in brackets, what it holds (A2[P1{o}]: plate 1 with the onion on it)"),
+    ("A1: ...", "an agent's macro-action, done or running, and its chop counter"),
+)
+
 
 def _item(core, k: int) -> str:
     if k < 3:

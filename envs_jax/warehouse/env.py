@@ -384,6 +384,13 @@ class WarehouseEnv(MacroEnv[WarehouseCore]):
             ]
         ).astype(jnp.float32)
 
+    @property
+    def render_legend(self) -> tuple[tuple[str, str], ...]:
+        """What ``render`` prints, symbol by symbol: (symbol, meaning) pairs."""
+        from envs_jax.warehouse.render import RENDER_LEGEND
+
+        return RENDER_LEGEND
+
     def render(self, state) -> str:
         from envs_jax.warehouse.render import render_text
 

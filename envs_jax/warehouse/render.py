@@ -8,6 +8,19 @@ from envs_jax.warehouse import variants as V
 
 _CELL = 0.5  # metres per character
 
+# What ``render_text`` prints, symbol by symbol: (symbol, meaning) pairs (``jaxmac rollout`` prints them).
+RENDER_LEGEND = (
+    (".", "0.5 m × 0.5 m of floor (x to the right, y up)"),
+    ("A B C D", "the work areas of humans 0, 1, 2, 3"),
+    ("T", "TRW, the robots' waiting spot by the tool room"),
+    ("t", "a robot's spot at the table (TB_i) where F hands tools over"),
+    ("F", "the fetch manipulator (the last agent; it never moves)"),
+    ("0 1 2", "robots, drawn over whatever is at their position"),
+    ("robotI ...", "position, last waypoint, macro-action (done), travel/wait timer, tools carried per type"),
+    ("F ...", "F's macro-action, timer, doomed pass, staged tool types, successful searches per type"),
+    ("humanH ...", "work phase (needs tool c in phase c < 3), phase timer, served = received tool 2"),
+)
+
 
 def render_text(env, state) -> str:
     """Map (robots as digits over work areas ``A``…, tool room ``T``, tables ``t``, F ``F``)

@@ -13,9 +13,9 @@ import jax
 import jax.numpy as jnp
 
 from envs_jax.policies import uniform_random_actions
+from jaxmac.algos.targets import joint_conditional_argmax
 from jaxmac.ops import masked_argmax
 from jaxmac.schedules import linear_schedule
-from jaxmac.algos.targets import joint_conditional_argmax
 
 
 def epsilon_schedule(config, episodes: chex.Array) -> chex.Array:

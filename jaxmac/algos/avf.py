@@ -19,18 +19,63 @@ stepping at joint decision points.
 
 from __future__ import annotations
 
+import dataclasses
+from typing import Any
+
 import jax
 import jax.numpy as jnp
 
 from envs_jax.core import MacroEnv
-from jaxmac.algos.base import Algorithm, default_optimizer
+from envs_jax.validation import check_choice, check_positive
+from jaxmac.algos.base import Algorithm, Learner, default_optimizer
+from jaxmac.algos.families.decentralised import agents_step, agents_values, init_agent_drqn, sequence_q
+from jaxmac.algos.families.drqn_settings import CEN_SCRIPT_VALUES, TINY_VALUES, DRQNSettings
+from jaxmac.algos.targets import conditional_greedy
 from jaxmac.buffer import windows
 from jaxmac.config import TrainConfig
-from jaxmac.algos.families.decentralised import agents_step, agents_values, init_agent_drqn, sequence_q
 from jaxmac.losses import masked_mean, td_mse
 from jaxmac.networks.drqn import AgentDRQN
 from jaxmac.networks.mixers import Mixer, MixerConfig, init_mixer_params, mix_actions
-from jaxmac.algos.targets import conditional_greedy
+from jaxmac.scenarios import SCENARIOS
+
+MIXERS = ("qmix", "vdn", "qplex")
+
+
+@dataclasses.dataclass(frozen=True)
+class AVFSettings(DRQNSettings, algorithm="avf"):
+    """AVF (docs/baselines.md §1.7): per-agent recurrent Q on Mac-JERT, mixed into Q_tot, conditional double-Q.
+
+    ``scheme``: 'd0' trains every agent's utility at every joint transition; 'd1' gives agents whose
+    macro-action is still running zero gradient (their utility enters Q_tot detached); 'd2' gives them zero
+    utility in the mixer. ``macro_state``: the mixer is conditioned on the concatenation of every agent's
+    macro-state (the env state when it selected its running macro-action; the "MS" variants) instead of the
+    state at the joint decision point.
+    """
+
+    rnn_size: int = 64
+    mlp_sizes: tuple[int, ...] = (64, 64)
+    mixer: str = "qmix"
+    scheme: str = "d0"
+    macro_state: bool = True
+    mixer_embed: int = 32
+    hyper_hidden: int = 32
+
+    def __post_init__(self):
+        self._validate("avf")
+        check_choice("avf", "mixer", self.mixer, MIXERS)
+        check_choice("avf", "scheme", self.scheme, ("d0", "d1", "d2"))
+        check_positive("avf", self, ("mixer_embed", "hyper_hidden"))
+
+
+# AVF (docs/baselines.md §1.7): the value learners' schedule with AVF's own optimiser, buffer and target settings:
+# lr 5e-4, batch 32, 2,500 episodes, Polyak ω = 0.995 after every step; windows as the value learners.
+_AVF = dict(lr=5e-4, batch_size=32, buffer_episodes=2500, target_polyak=0.005)
+SCENARIO_VALUES: dict[str, dict[str, Any]] = {
+    name: dict(CEN_SCRIPT_VALUES[name], **_AVF, mlp_sizes=(64, 64),
+               start_train_episodes=min(CEN_SCRIPT_VALUES[name]["start_train_episodes"], 2500),
+               h_explore=True)  # AVF is not MacroMARL's runner: it keeps its recurrent state while exploring
+    for name in SCENARIOS
+}
 
 
 def make_avf(config: TrainConfig, env: MacroEnv) -> Algorithm:
@@ -85,3 +130,7 @@ def make_avf(config: TrainConfig, env: MacroEnv) -> Algorithm:
         store=windows.store_views(jert=True, cert=False),
         sample=windows.window_source(config.batch_size, settings.trace_len),
         values=lambda p, c, ts: agents_values(net, p["agent"], c, ts, True)[0])
+
+
+LEARNER = Learner("avf", AVFSettings, make_avf, SCENARIO_VALUES, dict(TINY_VALUES, mixer_embed=8, hyper_hidden=8),
+                  "AVF: per-agent recurrent Q on Mac-JERT mixed by VDN/QMIX/QPLEX, conditional double-Q, Polyak target")

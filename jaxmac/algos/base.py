@@ -2,8 +2,8 @@
 
 An ``Algorithm`` says what learners differ in; everything else (rollout, episode writer, ring, schedule,
 target updates, evaluation, metrics) is the trainer's. The defaults cover the replay-based value learners:
-the data source samples episodes from the ring, the update is one gradient step on ``loss`` with the
-config's optimiser.
+the data source samples episodes from the ring (``jaxmac.buffer.sources``), the update is one gradient step on
+``loss`` with the config's optimiser. ``Learner`` is how a learner module presents itself to the registry.
 
 ``Progress`` carries the counters a schedule may read inside the compiled round (episodes, env steps,
 gradient steps so far).
@@ -19,7 +19,6 @@ import jax
 import optax
 from flax import struct
 
-from jaxmac.buffer import ring as ring_lib
 from jaxmac.buffer.episode import EpisodeSlot
 from jaxmac.collect import Act
 
@@ -35,8 +34,38 @@ class Progress:
 
 Loss = Callable[[Any, Any, Any, chex.PRNGKey, Progress], tuple[chex.Array, dict[str, chex.Array]]]
 Update = Callable[[Any, Any, Any, Any, chex.PRNGKey, Progress], tuple[Any, Any, dict[str, chex.Array]]]
-Sample = Callable[[ring_lib.RingState, EpisodeSlot, chex.PRNGKey], Any]
+# (ring state, fresh slots, key) -> batch: jaxmac.buffer.sources
+Sample = Callable[[Any, EpisodeSlot, chex.PRNGKey], Any]
 BehaviourAct = Callable[[Any, Any, Any, chex.PRNGKey, chex.Array, chex.Array], tuple[Any, chex.Array]]
+
+
+@dataclasses.dataclass(frozen=True)
+class Learner:
+    """A learner as the registry (``jaxmac.algos.registry``) lists it; each learner module defines its own
+    ``LEARNER``.
+
+    settings: its settings block class (a ``jaxmac.config.LearnerSettings`` naming this learner)
+    make(config, env) -> Algorithm: the factory
+    scenario_values: per scenario, the values its configuration starts from (shared ``TrainConfig`` fields and block
+        fields in one flat dict; ``jaxmac.presets.scenario_config``)
+    tiny_values: block values for tests and smoke runs (with ``jaxmac.presets.TINY``)
+    summary: one line for listings
+    paper_values: the publication's own values where ``scenario_values`` differ (``jaxmac train --paper``); None =
+        the defaults are the publication's
+    """
+
+    name: str
+    settings: type
+    make: Callable[..., "Algorithm"]
+    scenario_values: dict[str, dict[str, Any]]
+    tiny_values: dict[str, Any]
+    summary: str
+    paper_values: dict[str, dict[str, Any]] | None = None
+
+    def __post_init__(self):
+        if getattr(self.settings, "algorithm", None) != self.name:
+            raise ValueError(f"learner {self.name!r}: its settings class {self.settings.__name__} must name it "
+                             f"(class {self.settings.__name__}(..., algorithm={self.name!r}))")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -123,29 +152,3 @@ def clipped_adam(lr: float, grad_clip: float) -> optax.GradientTransformation:
     if grad_clip == 0:
         return optax.adam(lr)
     return optax.chain(optax.clip_by_global_norm(grad_clip), optax.adam(lr))
-
-
-def on_policy_source(prepare: Callable[[EpisodeSlot], Any]) -> Sample:
-    """The on-policy data source: the episodes just collected (leaves ``[E, ...]``), through ``prepare`` (the views
-    the learner trains on). The ring is not read; such a learner stores only each episode's length in it."""
-
-    def sample(ring, fresh, key):
-        del ring, key
-        return prepare(fresh)
-
-    return sample
-
-
-def store_length(slot: EpisodeSlot):
-    """``Algorithm.store`` of an on-policy learner: the ring keeps nothing but the episode's length."""
-    return slot.length
-
-
-def sample_episodes(batch_size: int) -> Sample:
-    """The default data source: ``batch_size`` whole episodes, uniformly from the ring."""
-
-    def sample(ring, fresh, key):
-        del fresh
-        return ring_lib.sample(ring, key, batch_size)[0]
-
-    return sample

@@ -12,21 +12,76 @@ its n-step macro returns and the critic-then-actor update are Mac-NIACC's (``jax
 
 from __future__ import annotations
 
+import dataclasses
+
 import jax
 import jax.numpy as jnp
 
 from envs_jax.core import MacroEnv
+from envs_jax.validation import check_positive
+from jaxmac.algos.base import (
+    Algorithm,
+    Learner,
+    clipped_adam,
+    per_part_optimizer,
+)
 from jaxmac.algos.families import actor_critic as ac
 from jaxmac.algos.families import centralised
-from jaxmac.algos.base import Algorithm, clipped_adam, on_policy_source, per_part_optimizer, store_length
+from jaxmac.algos.families.actor_critic_settings import TINY_VALUES, ActorCriticSettings, script_values
+from jaxmac.algos.targets import ravel_joint
+from jaxmac.buffer.sources import on_policy_source, store_length
 from jaxmac.config import TrainConfig
 from jaxmac.losses import masked_mean
 from jaxmac.networks.drqn import DRQN
-from jaxmac.algos.targets import ravel_joint
+
+
+@dataclasses.dataclass(frozen=True)
+class MacCACSettings(ActorCriticSettings, algorithm="mac_cac"):
+    """Mac-CAC (docs/baselines.md §1.4): one joint actor over the joint macro-action space and one joint history critic."""
+
+    max_joint_actions: int = 4096
+
+    def __post_init__(self):
+        self._validate("mac_cac")
+        check_positive("mac_cac", self, ("max_joint_actions",))
+
+
+# mac_cac.sh's rows (docs/hyperparameters.md)
+_OC_CRITIC = (128, 64)  # the Overcooked scripts' critic MLP
+SCENARIO_VALUES = script_values({
+    "boxpushing-6x6": dict(lr=1e-3, critic_lr=3e-3, num_envs=2, target_update_episodes=64, n_step=3, eps_end=0.01,
+                           eps_decay_episodes=4000, episodes=40_000),
+    "boxpushing-8x8": dict(lr=3e-4, critic_lr=3e-3, num_envs=32, target_update_episodes=0, n_step=3, eps_end=0.01,
+                           eps_decay_episodes=4000, episodes=40_000),  # the script: 32
+    "boxpushing-10x10": dict(lr=5e-4, critic_lr=1e-3, num_envs=32, target_update_episodes=128, n_step=3,
+                             eps_end=0.01, eps_decay_episodes=6000, episodes=40_000),
+    "boxpushing-12x12": dict(lr=1e-3, critic_lr=3e-3, num_envs=8, target_update_episodes=128, n_step=0, eps_end=0.01,
+                             eps_decay_episodes=6000, episodes=40_000),
+    "boxpushing-14x14": dict(lr=1e-3, critic_lr=1e-3, num_envs=16, target_update_episodes=128, n_step=3,
+                             eps_end=0.01, eps_decay_episodes=8000, episodes=40_000),
+    "overcooked-A": dict(lr=1e-4, critic_lr=3e-3, num_envs=8, target_update_episodes=32, n_step=5, eps_end=0.05,
+                         eps_decay_episodes=20_000, episodes=100_000, critic_rnn_size=64,
+                         critic_mlp_sizes=_OC_CRITIC),
+    "overcooked-B": dict(lr=1e-4, critic_lr=3e-3, num_envs=4, target_update_episodes=16, n_step=3, eps_end=0.05,
+                         eps_decay_episodes=20_000, episodes=120_000, critic_rnn_size=64,
+                         critic_mlp_sizes=_OC_CRITIC),
+    "overcooked-C": dict(lr=1e-4, critic_lr=3e-3, num_envs=8, target_update_episodes=32, n_step=3, eps_end=0.05,
+                         eps_decay_episodes=20_000, episodes=100_000, critic_rnn_size=64,
+                         critic_mlp_sizes=_OC_CRITIC),
+    "warehouse-A": dict(lr=3e-4, critic_lr=3e-3, num_envs=4, target_update_episodes=32, n_step=5, eps_end=0.05,
+                        eps_decay_episodes=10_000, episodes=40_000, actor_rnn_size=64, critic_rnn_size=64),
+    "warehouse-B": dict(lr=3e-4, critic_lr=3e-3, num_envs=4, target_update_episodes=16, n_step=5, eps_end=0.05,
+                        eps_decay_episodes=10_000, episodes=40_000, actor_rnn_size=64, critic_rnn_size=64),
+    "warehouse-C": dict(lr=5e-4, critic_lr=1e-3, num_envs=8, target_update_episodes=64, n_step=5, eps_end=0.01,
+                        eps_decay_episodes=10_000, episodes=80_000, actor_rnn_size=64, critic_rnn_size=64),
+    "warehouse-D": dict(lr=3e-4, critic_lr=3e-3, num_envs=8, target_update_episodes=64, n_step=3, eps_end=0.01,
+                        eps_decay_episodes=10_000, episodes=80_000, actor_rnn_size=64, critic_rnn_size=64),
+    "warehouse-E": dict(lr=3e-4, critic_lr=3e-3, num_envs=8, target_update_episodes=64, n_step=3, eps_end=0.01,
+                        eps_decay_episodes=10_000, episodes=100_000, actor_rnn_size=64, critic_rnn_size=64),
+})
 
 
 def make_mac_cac(config: TrainConfig, env: MacroEnv) -> Algorithm:
-    ac.check_on_policy(config, "mac_cac")
     settings, spec = config.algo, env.spec
     counts = spec.num_actions
     joint = centralised.check_joint_space(env, settings.max_joint_actions, "mac_cac")
@@ -79,3 +134,8 @@ def make_mac_cac(config: TrainConfig, env: MacroEnv) -> Algorithm:
         update=ac.critic_then_actor_update(critic_targets, critic_values, actor_loss, optimizers, config),
         store=store_length, sample=on_policy_source(ac.prepare_on_policy(cert=False, jert=True)),
         greedy_act=greedy_act)
+
+
+LEARNER = Learner("mac_cac", MacCACSettings, make_mac_cac, SCENARIO_VALUES,
+                  {k: v for k, v in TINY_VALUES.items() if k != "critic_mid_size"},
+                  "Mac-CAC: a joint actor over joint macro-actions and a joint history critic, on-policy")

@@ -13,18 +13,69 @@ on-policy critic-then-actor update as Mac-IAICC (``jaxmac.algos.families.actor_c
 
 from __future__ import annotations
 
+import dataclasses
+
 import jax
 import jax.numpy as jnp
 
 from envs_jax.core import MacroEnv
+from jaxmac.algos.base import (
+    Algorithm,
+    Learner,
+    clipped_adam,
+    per_part_optimizer,
+)
 from jaxmac.algos.families import actor_critic as ac
 from jaxmac.algos.families import centralised
-from jaxmac.algos.base import Algorithm, clipped_adam, on_policy_source, per_part_optimizer, store_length
+from jaxmac.algos.families.actor_critic_settings import TINY_VALUES, IndependentActorsSettings, script_values
+from jaxmac.buffer.sources import on_policy_source, store_length
 from jaxmac.config import TrainConfig
 
 
+@dataclasses.dataclass(frozen=True)
+class MacNIACCSettings(IndependentActorsSettings, algorithm="mac_niacc"):
+    """Mac-NIACC (docs/baselines.md §1.5): per-agent actors, one joint critic, the joint ("naive") advantage."""
+
+    def __post_init__(self):
+        self._validate("mac_niacc")
+
+
+# mac_naive_iacc.sh's rows (docs/hyperparameters.md; Box Pushing: the state critic, NaiveMacIASC)
+_OC_CRITIC = (128, 64)  # the Overcooked scripts' critic MLP
+SCENARIO_VALUES = script_values({
+    "boxpushing-6x6": dict(lr=3e-4, critic_lr=3e-3, num_envs=32, target_update_episodes=128, n_step=0, eps_end=0.01,
+                           eps_decay_episodes=4000, episodes=40_000),
+    "boxpushing-8x8": dict(lr=5e-4, critic_lr=1e-3, num_envs=32, target_update_episodes=128, n_step=0, eps_end=0.01,
+                           eps_decay_episodes=4000, episodes=40_000),
+    "boxpushing-10x10": dict(lr=5e-4, critic_lr=1e-3, num_envs=32, target_update_episodes=128, n_step=0,
+                             eps_end=0.01, eps_decay_episodes=6000, episodes=40_000),
+    "boxpushing-12x12": dict(lr=5e-4, critic_lr=5e-4, num_envs=48, target_update_episodes=0, n_step=0, eps_end=0.01,
+                             eps_decay_episodes=6000, episodes=40_000),  # the script: 48
+    "boxpushing-14x14": dict(lr=5e-4, critic_lr=5e-4, num_envs=32, target_update_episodes=128, n_step=0,
+                             eps_end=0.01, eps_decay_episodes=8000, episodes=40_000),
+    "overcooked-A": dict(lr=3e-4, critic_lr=3e-3, num_envs=4, target_update_episodes=16, n_step=5, eps_end=0.05,
+                         eps_decay_episodes=20_000, episodes=100_000, critic_rnn_size=64,
+                         critic_mlp_sizes=_OC_CRITIC),
+    "overcooked-B": dict(lr=3e-4, critic_lr=3e-3, num_envs=8, target_update_episodes=16, n_step=5, eps_end=0.05,
+                         eps_decay_episodes=20_000, episodes=120_000, critic_rnn_size=64,
+                         critic_mlp_sizes=_OC_CRITIC),
+    "overcooked-C": dict(lr=3e-4, critic_lr=3e-3, num_envs=8, target_update_episodes=16, n_step=5, eps_end=0.05,
+                         eps_decay_episodes=20_000, episodes=100_000, critic_rnn_size=64,
+                         critic_mlp_sizes=_OC_CRITIC),
+    "warehouse-A": dict(lr=3e-4, critic_lr=3e-3, num_envs=4, target_update_episodes=32, n_step=3, eps_end=0.01,
+                        eps_decay_episodes=10_000, episodes=40_000, actor_rnn_size=32, critic_rnn_size=64),
+    "warehouse-B": dict(lr=3e-4, critic_lr=3e-3, num_envs=4, target_update_episodes=32, n_step=3, eps_end=0.01,
+                        eps_decay_episodes=10_000, episodes=40_000, actor_rnn_size=32, critic_rnn_size=64),
+    "warehouse-C": dict(lr=3e-4, critic_lr=3e-3, num_envs=16, target_update_episodes=64, n_step=5, eps_end=0.01,
+                        eps_decay_episodes=10_000, episodes=80_000, actor_rnn_size=32, critic_rnn_size=64),
+    "warehouse-D": dict(lr=3e-4, critic_lr=3e-3, num_envs=8, target_update_episodes=64, n_step=5, eps_end=0.01,
+                        eps_decay_episodes=10_000, episodes=80_000, actor_rnn_size=32, critic_rnn_size=64),
+    "warehouse-E": dict(lr=5e-4, critic_lr=5e-4, num_envs=4, target_update_episodes=32, n_step=5, eps_end=0.01,
+                        eps_decay_episodes=10_000, episodes=100_000, actor_rnn_size=32, critic_rnn_size=64),
+}, boxpushing=dict(critic="state"))
+
+
 def make_mac_niacc(config: TrainConfig, env: MacroEnv) -> Algorithm:
-    ac.check_on_policy(config, "mac_niacc")
     settings, spec = config.algo, env.spec
     actors = ac.AgentActors.make(settings, spec)
     history = settings.critic == "history"
@@ -63,3 +114,7 @@ def make_mac_niacc(config: TrainConfig, env: MacroEnv) -> Algorithm:
         optimizer=per_part_optimizer(optimizers),
         update=ac.critic_then_actor_update(critic_targets, critic_values, actor_loss, optimizers, config),
         store=store_length, sample=on_policy_source(prepare), greedy_act=actors.greedy_act)
+
+
+LEARNER = Learner("mac_niacc", MacNIACCSettings, make_mac_niacc, SCENARIO_VALUES, TINY_VALUES,
+                  "Mac-NIACC: per-agent actors, one joint critic (history or state), the joint advantage, on-policy")

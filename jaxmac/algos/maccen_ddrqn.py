@@ -15,14 +15,35 @@ values each decision from a zero state (as the original runner), greedy evaluati
 
 from __future__ import annotations
 
+import dataclasses
+
 import jax.numpy as jnp
 
 from envs_jax.core import MacroEnv
+from envs_jax.validation import check_positive
+from jaxmac.algos.base import Algorithm, Learner, default_optimizer
 from jaxmac.algos.families import centralised
-from jaxmac.algos.base import Algorithm, default_optimizer
+from jaxmac.algos.families.drqn_settings import CEN_SCRIPT_VALUES, TINY_VALUES, DRQNSettings
 from jaxmac.buffer import windows
 from jaxmac.config import TrainConfig
 from jaxmac.networks.drqn import DRQN
+
+
+@dataclasses.dataclass(frozen=True)
+class MacCenDDRQNSettings(DRQNSettings, algorithm="maccen_ddrqn"):
+    """Mac-Cen-DDRQN (MacCen-Q, docs/baselines.md §1.2): one centralised recurrent Q over the joint action space (plain
+    MSE: the scripts' hysteresis is 1)."""
+
+    rnn_size: int = 64
+    max_joint_actions: int = 4096  # refuse envs whose joint macro-action space is larger
+
+    def __post_init__(self):
+        self._validate("maccen_ddrqn")
+        check_positive("maccen_ddrqn", self, ("max_joint_actions",))
+
+
+# mac_cen_q.sh's values (docs/hyperparameters.md)
+SCENARIO_VALUES = CEN_SCRIPT_VALUES
 
 
 def make_maccen_ddrqn(config: TrainConfig, env: MacroEnv) -> Algorithm:
@@ -50,3 +71,7 @@ def make_maccen_ddrqn(config: TrainConfig, env: MacroEnv) -> Algorithm:
                      optimizer=default_optimizer(config), store=windows.store_views(jert=True, cert=False),
                      sample=windows.window_source(config.batch_size, settings.trace_len),
                      behaviour_act=behaviour_act)
+
+
+LEARNER = Learner("maccen_ddrqn", MacCenDDRQNSettings, make_maccen_ddrqn, SCENARIO_VALUES, TINY_VALUES,
+                  "Mac-Cen-DDRQN: centralised recurrent joint Q on Mac-JERT, conditional double-Q")

@@ -14,15 +14,59 @@ Behaviour: the centralised conditional ε-greedy controller for the first ``cen_
 
 from __future__ import annotations
 
+import dataclasses
+from typing import Any
+
 import jax
 import jax.numpy as jnp
 
 from envs_jax.core import MacroEnv
+from envs_jax.validation import check_positive
+from jaxmac.algos.base import Algorithm, Learner, default_optimizer
 from jaxmac.algos.families import centralised, decentralised
-from jaxmac.algos.base import Algorithm, default_optimizer
+from jaxmac.algos.families.drqn_settings import (
+    DEC_SCRIPT_VALUES,
+    TINY_VALUES,
+    HystereticDRQNSettings,
+    window_schedule,
+)
 from jaxmac.buffer import views, windows
 from jaxmac.config import TrainConfig
 from jaxmac.networks.drqn import DRQN, AgentDRQN
+from jaxmac.scenarios import BOXPUSHING, OVERCOOKED, WAREHOUSE
+
+
+@dataclasses.dataclass(frozen=True)
+class MacDecDDRQNSettings(HystereticDRQNSettings, algorithm="macdec_ddrqn"):
+    """Mac-Dec-MADDRQN (docs/baselines.md §1.3): MacCen-Q plus per-agent DRQNs whose targets take their component of
+    the centralised conditional argmax. ``rnn_size``/``mlp_sizes`` are the decentralised nets'."""
+
+    trace_len: int = 15
+    cen_rnn_size: int = 64
+    cen_mlp_sizes: tuple[int, ...] = (32, 32)
+    # behaviour policy: centralised conditional ε-greedy until cen_explore_episodes, then decentralised
+    cen_explore_episodes: int = 1_000_000
+    max_joint_actions: int = 4096
+
+    def __post_init__(self):
+        self._validate("macdec_ddrqn")
+        check_positive("macdec_ddrqn", self, ("cen_rnn_size", "cen_mlp_sizes", "max_joint_actions"))
+        if len(self.cen_mlp_sizes) != 2:
+            raise ValueError(f"macdec_ddrqn: cen_mlp_sizes={self.cen_mlp_sizes!r} must have two widths")
+        if self.cen_explore_episodes < 0:
+            raise ValueError(f"macdec_ddrqn: cen_explore_episodes={self.cen_explore_episodes!r} must be >= 0")
+
+
+# Mac-Dec-MADDRQN has no script in MacroMARL; the ICRA'20 README commands (docs/baselines.md §1.3): Box Pushing
+# trace_len = train_freq = 15, batch 128, ε → 0.1, start_train 2 episodes, centralised exploration throughout,
+# 15K episodes on BP-10 (we keep 40K like every other BP learner); elsewhere the MacDec-Q values with
+# centralised exploration.
+_DDRQN_BP = dict(window_schedule(128, 15, 4000), eps_end=0.1, start_train_episodes=2, eps_decay_start=2)
+SCENARIO_VALUES: dict[str, dict[str, Any]] = {
+    **{name: _DDRQN_BP for name in BOXPUSHING},
+    **{name: dict(DEC_SCRIPT_VALUES[name], cen_mlp_sizes=(128, 64)) for name in OVERCOOKED},
+    **{name: DEC_SCRIPT_VALUES[name] for name in WAREHOUSE},
+}
 
 
 def make_macdec_ddrqn(config: TrainConfig, env: MacroEnv) -> Algorithm:
@@ -73,3 +117,8 @@ def make_macdec_ddrqn(config: TrainConfig, env: MacroEnv) -> Algorithm:
                      store=windows.store_views(jert=True, cert=True),
                      sample=windows.window_source(config.batch_size, settings.trace_len), behaviour_act=behaviour_act,
                      values=lambda p, c, ts: decentralised.agents_values(dec, p["dec"], c["dec"], ts, True)[0])
+
+
+LEARNER = Learner("macdec_ddrqn", MacDecDDRQNSettings, make_macdec_ddrqn, SCENARIO_VALUES,
+                  dict(TINY_VALUES, cen_mlp_sizes=(8, 8), cen_rnn_size=8),
+                  "Mac-Dec-MADDRQN: decentralised DRQNs whose targets follow a centralised conditional joint Q")

@@ -7,14 +7,29 @@ Mac-CERT transitions (reward accumulated over its own macro-action, γ^τ bootst
 
 from __future__ import annotations
 
+import dataclasses
+
 import jax.numpy as jnp
 
 from envs_jax.core import MacroEnv
+from jaxmac.algos.base import Algorithm, Learner, default_optimizer
 from jaxmac.algos.families import decentralised
-from jaxmac.algos.base import Algorithm, default_optimizer
+from jaxmac.algos.families.drqn_settings import DEC_SCRIPT_VALUES, TINY_VALUES, HystereticDRQNSettings
 from jaxmac.buffer import windows
 from jaxmac.config import TrainConfig
 from jaxmac.networks.drqn import AgentDRQN
+
+
+@dataclasses.dataclass(frozen=True)
+class MacDecQSettings(HystereticDRQNSettings, algorithm="macdec_q"):
+    """MacDec-Q (Dec-HDDRQN on Mac-CERT, docs/baselines.md §1.1): per-agent DRQNs, hysteretic double-Q."""
+
+    def __post_init__(self):
+        self._validate("macdec_q")
+
+
+# mac_dec_q.sh's values (docs/hyperparameters.md)
+SCENARIO_VALUES = DEC_SCRIPT_VALUES
 
 
 def make_macdec_q(config: TrainConfig, env: MacroEnv) -> Algorithm:
@@ -39,3 +54,7 @@ def make_macdec_q(config: TrainConfig, env: MacroEnv) -> Algorithm:
         optimizer=default_optimizer(config), store=windows.store_views(jert=False, cert=True),
         sample=windows.window_source(config.batch_size, settings.trace_len),
         behaviour_act=behaviour_act, values=lambda p, c, ts: decentralised.agents_values(net, p, c, ts, True)[0])
+
+
+LEARNER = Learner("macdec_q", MacDecQSettings, make_macdec_q, SCENARIO_VALUES, TINY_VALUES,
+                  "MacDec-Q: independent recurrent Q per agent on Mac-CERT, hysteretic double-Q")

@@ -32,16 +32,16 @@ import optax
 from flax import struct
 
 from jaxmac.algos.acting import epsilon_schedule
-from jaxmac.buckets import length_bucketed
-from jaxmac.buffer import views, windows
-from jaxmac.buffer.episode import EpisodeSlot
 from jaxmac.algos.families.centralised import joint_obs
 from jaxmac.algos.families.decentralised import init_agent_drqn
 from jaxmac.algos.families.decentralised import sequence_q as decentralised_sequence
-from jaxmac.losses import masked_mean, td_mse
-from jaxmac.ops import MASK_VALUE, gather_q, masked_argmax
-from jaxmac.networks.drqn import DRQN, AgentDRQN, AgentStateCritic, StateCritic
 from jaxmac.algos.targets import joint_mask, unravel_joint
+from jaxmac.buckets import length_bucketed
+from jaxmac.buffer import views, windows
+from jaxmac.buffer.episode import EpisodeSlot
+from jaxmac.losses import masked_mean, td_mse
+from jaxmac.networks.drqn import DRQN, AgentDRQN, AgentStateCritic, StateCritic
+from jaxmac.ops import MASK_VALUE, gather_q, masked_argmax
 
 
 def real_action_mask(action_counts: Sequence[int], width: int) -> np.ndarray:
@@ -199,18 +199,6 @@ def critic_then_actor_update(critic_targets: CriticTargets, critic_values: Criti
         return {"actor": actor, "critic": critic}, {"actor": a_state, "critic": c_state}, metrics
 
     return on_policy_bucketed(update, config.length_buckets)
-
-
-def check_on_policy(config, algorithm: str) -> None:
-    """The actor-critics train on the ``num_envs`` episodes of each round: refuse settings that say otherwise."""
-    if config.batch_size != config.num_envs:
-        raise ValueError(f"{algorithm} learns on-policy from the num_envs={config.num_envs} episodes collected each "
-                         f"round; batch_size={config.batch_size} must equal num_envs")
-    if config.train_every_steps or config.start_train_episodes or config.target_update_steps or config.target_polyak:
-        raise ValueError(f"{algorithm} updates once per round of num_envs episodes and copies its target critic every "
-                         f"target_update_episodes; train_every_steps={config.train_every_steps}, start_train_episodes="
-                         f"{config.start_train_episodes}, target_update_steps={config.target_update_steps} and "
-                         f"target_polyak={config.target_polyak} must be 0")
 
 
 # --- the episodes an update reads, and the decentralised actors ------------------------------------------

@@ -13,12 +13,11 @@ import jax.numpy as jnp
 
 from envs_jax.core import MacroEnv
 from jaxmac.algos.acting import joint_epsilon_greedy
+from jaxmac.algos.targets import joint_action_count, joint_conditional_argmax, ravel_joint
 from jaxmac.buffer import windows
 from jaxmac.losses import masked_mean, td_mse
 from jaxmac.networks.drqn import DRQN
 from jaxmac.scenarios import SCENARIOS
-from jaxmac.algos.targets import joint_action_count, joint_conditional_argmax, ravel_joint
-
 
 
 def check_joint_space(env: MacroEnv, limit: int, algorithm: str) -> int:

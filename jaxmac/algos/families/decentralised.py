@@ -20,8 +20,8 @@ from jaxmac.algos.acting import epsilon_greedy
 from jaxmac.buffer import windows
 from jaxmac.losses import masked_mean, td_mse
 from jaxmac.networks.drqn import AgentDRQN
-from jaxmac.schedules import linear_schedule
 from jaxmac.ops import gather_q, masked_argmax
+from jaxmac.schedules import linear_schedule
 
 
 def init_agent_drqn(net: AgentDRQN, key: chex.PRNGKey, num_agents: int, obs_dim: int):

@@ -11,8 +11,10 @@ starts the others, one after another in this process, each with its seeds vmappe
 (``…/seeds4-8``) that the statistics merge with the first ones.
 
 Several sweep processes may work through one folder at once (e.g. one per core: ``taskset -c 0 jaxmac sweep bp &
-taskset -c 1 jaxmac sweep bp``): each takes a cell by locking its run folder (``jaxmac.run.lock_run_folder``: an OS
-lock, released when its process ends, however it ends), and leaves cells another live process holds.
+taskset -c 1 jaxmac sweep bp``): each takes a cell by locking its run folder (``jaxmac.runs.lock_run_folder``: an OS
+lock, released when its process ends, however it ends), and leaves cells another live process holds. On a cluster,
+``--cluster ray`` runs every cell as a Ray task instead (``jaxmac.study.cluster``), through the same ``run_cell``.
+Every attempt at a cell appends where and how it ran to the cell's ``attempts.jsonl`` (``record_attempt``).
 
 Folder layout: ``OUT/<scenario>/<method>/seeds<A>-<B>/`` (a run folder).
 """
@@ -23,7 +25,8 @@ import dataclasses
 import os
 from typing import Any
 
-from jaxmac.config import TrainConfig, scenario_config
+from jaxmac.config import TrainConfig
+from jaxmac.presets import scenario_config
 from jaxmac.scenarios import BOXPUSHING, FAMILIES, OVERCOOKED, WAREHOUSE, family
 
 @dataclasses.dataclass(frozen=True)
@@ -183,7 +186,9 @@ PROTOCOLS = {
         "their update makes a cell cost hours: about 12 hours of a 2-core CPU", scale_schedules=True,
         not_run=_NOT_RUN_CPU),
     "smoke": Protocol("smoke", 1, (("boxpushing", 32), ("warehouse", 32), ("overcooked", 32)),
-                      "1 seed, 32 episodes, tiny networks: checks a sweep's plumbing in minutes", tiny=True),
+                      "1 seed, 32 episodes, tiny networks: checks a sweep's plumbing and decides nothing; ~25 s a "
+                      "cell on a 2-core CPU, nearly all of it compiling the cell's own program (bp's 40 cells took "
+                      "17 min; 109 cells in all five experiments, not timed); --only TEXT runs fewer", tiny=True),
 }
 
 
@@ -196,16 +201,18 @@ def not_run_cells(experiment: str, protocol: str) -> list[tuple[str, str, str]]:
 
 
 def plan(experiment: str, protocol: str = "cpu", seeds: tuple[int, int] | None = None,
-         only: str | None = None) -> list[Cell]:
+         only: str | None = None, methods: tuple[Method, ...] | None = None) -> list[Cell]:
     """Every cell of ``experiment`` under ``protocol``; ``seeds`` = (first seed, count) replaces the protocol's
-    count (e.g. (4, 4) adds seeds 4-7); ``only`` keeps the cells whose path contains that text."""
+    count (e.g. (4, 4) adds seeds 4-7); ``only`` keeps the cells whose path contains that text; ``methods``
+    replaces the experiment's methods (``jaxmac sweep --config``: ``jaxmac.config_files.sweep_methods``)."""
     if experiment not in EXPERIMENTS:
         raise ValueError(f"unknown experiment {experiment!r}; valid experiments: {list(EXPERIMENTS)}")
     if protocol not in PROTOCOLS:
         raise ValueError(f"unknown protocol {protocol!r}; valid protocols: {list(PROTOCOLS)}")
     proto = PROTOCOLS[protocol]
     first, count = seeds if seeds is not None else (0, proto.seeds)
-    methods, scenarios = EXPERIMENTS[experiment]
+    own, scenarios = EXPERIMENTS[experiment]
+    methods = own if methods is None else methods
     cells = []
     for scenario in scenarios:
         for method in methods:
@@ -224,7 +231,7 @@ def cell_status(out_dir: str, cell: Cell) -> str:
     """'done' (a summary), 'interrupted' (a run folder without one) or 'new'. A folder that holds a run of another
     configuration (other settings, budget or seeds) is refused, naming what differs: cells are shared between
     experiments by path, so a path must always mean the same run."""
-    from jaxmac.run import read_meta
+    from jaxmac.runs import read_meta
 
     path = os.path.join(out_dir, cell.path)
     config_path = os.path.join(path, "config.json")
@@ -274,48 +281,90 @@ def run_sweep(cells: list[Cell], out_dir: str, devices: int = 1, progress: bool 
     """Run every cell not done yet (resume the interrupted ones); returns {cell path: what was done}."""
     import jax
 
-    from jaxmac.run import resume_run, train_run
-
     done = {}
     for k, cell in enumerate(cells):
-        status = cell_status(out_dir, cell)
-        path = os.path.join(out_dir, cell.path)
-        if status == "done":
-            log(f"[{k + 1}/{len(cells)}] {cell.path}: done")
-            done[cell.path] = "skipped"
-            continue
-        lock = claim_cell(path)
-        if not lock:
-            log(f"[{k + 1}/{len(cells)}] {cell.path}: being trained by another sweep process")
-            done[cell.path] = "busy"
-            continue
-        try:
-            status = cell_status(out_dir, cell)  # again, ours now: another process may have finished it meanwhile
-            if status == "done":
-                log(f"[{k + 1}/{len(cells)}] {cell.path}: done")
-                done[cell.path] = "skipped"
-                continue
-            log(f"[{k + 1}/{len(cells)}] {cell.path}: {status}")
-            if status == "interrupted":
-                resume_run(path, progress=progress, devices=devices, checkpoint_seconds=checkpoint_seconds)
-                done[cell.path] = "resumed"
-            else:
-                train_run(cell.config(), cell.seeds, path, seed_offset=cell.first_seed, progress=progress,
-                          devices=devices, checkpoint_seconds=checkpoint_seconds)
-                done[cell.path] = "trained"
-        finally:
-            lock.release()
-        jax.clear_caches()  # the next cell compiles its own program
+        done[cell.path] = run_cell(cell, out_dir, devices, progress, log, checkpoint_seconds,
+                                   prefix=f"[{k + 1}/{len(cells)}] ")
+        if done[cell.path] in ("trained", "resumed"):
+            jax.clear_caches()  # the next cell compiles its own program
     return done
+
+
+def run_cell(cell: Cell, out_dir: str, devices: int = 1, progress: bool = True, log=print,
+             checkpoint_seconds: float = 120.0, prefix: str = "", where: dict | None = None) -> str:
+    """Train ``cell`` into ``out_dir`` (resume it if interrupted): 'trained', 'resumed', 'skipped' (done already) or
+    'busy' (another live process holds it). Each attempt is recorded in the cell's ``attempts.jsonl`` (``where``:
+    the executor's own fields, e.g. a Ray node id; default: this process, ``executor: embedded``). The one code path
+    of a cell, in a sweep process (``run_sweep``) or a Ray task (``jaxmac.study.cluster``)."""
+    from jaxmac.runs import resume_run, train_run
+
+    status = cell_status(out_dir, cell)
+    path = os.path.join(out_dir, cell.path)
+    if status == "done":
+        log(f"{prefix}{cell.path}: done")
+        return "skipped"
+    lock = claim_cell(path)
+    if not lock:
+        log(f"{prefix}{cell.path}: being trained by another sweep process")
+        return "busy"
+    try:
+        status = cell_status(out_dir, cell)  # again, ours now: another process may have finished it meanwhile
+        if status == "done":
+            log(f"{prefix}{cell.path}: done")
+            return "skipped"
+        log(f"{prefix}{cell.path}: {status}")
+        record_attempt(path, "resume" if status == "interrupted" else "train", devices, where)
+        if status == "interrupted":
+            resume_run(path, progress=progress, devices=devices, checkpoint_seconds=checkpoint_seconds)
+            return "resumed"
+        train_run(cell.config(), cell.seeds, path, seed_offset=cell.first_seed, progress=progress,
+                  devices=devices, checkpoint_seconds=checkpoint_seconds)
+        return "trained"
+    finally:
+        lock.release()
+
+
+ATTEMPTS_FILE = "attempts.jsonl"
+
+
+def record_attempt(path: str, action: str, devices: int = 1, where: dict | None = None) -> dict:
+    """Append to the cell folder ``path``'s ``attempts.jsonl`` one line on where and how this attempt at the cell runs:
+    the executor (``embedded``: a sweep process; ``ray``: a Ray task, with its node and task ids), host, process,
+    the devices its seeds run on, JAX's version, and for a resume the chunks its newest checkpoint covers. A cell run
+    in several attempts (killed, resumed elsewhere) has a line per attempt. Returns the line's record."""
+    import json
+    import socket
+    import time
+
+    import jax
+
+    from jaxmac.runs.folders import append_text
+
+    used = jax.devices()[:devices]
+    record = {"executor": "embedded", **(where or {}), "action": action,
+              "started": time.strftime("%Y-%m-%dT%H:%M:%S%z"), "host": socket.gethostname(), "pid": os.getpid(),
+              "devices": [str(d) for d in used], "platform": used[0].platform,
+              "device_kind": used[0].device_kind, "jax": jax.__version__}
+    if action == "resume":
+        try:
+            with open(os.path.join(path, "progress.json")) as f:
+                record["from_chunk"] = json.load(f)["chunks_done"]
+        except (OSError, ValueError, KeyError):
+            record["from_chunk"] = 0
+    try:  # a record for people: a full disk must not stop the cell (its run folder says so itself)
+        append_text(os.path.join(path, ATTEMPTS_FILE), json.dumps(record) + "\n")
+    except OSError:
+        pass
+    return record
 
 
 def claim_cell(path: str):
     """Take the cell folder ``path`` for this process, so that several sweep processes — one per core, or per host on
     a shared disk that supports ``flock`` — can work through one sweep folder without training a cell twice: the
-    run folder's own lock (``jaxmac.run.try_lock_run_folder``), which the train or resume of the cell takes again.
+    run folder's own lock (``jaxmac.runs.try_lock_run_folder``), which the train or resume of the cell takes again.
     Returns the lock (release it when the cell is done), or None if another live process holds the cell. The OS
     releases the lock of a process that ends, however it ends, so a killed process's cell is taken over; a lock
     file alone (a dead process's, one naming a reused PID, an empty one left by a full disk) never blocks."""
-    from jaxmac.run import try_lock_run_folder
+    from jaxmac.runs import try_lock_run_folder
 
     return try_lock_run_folder(path, "sweep")

@@ -86,11 +86,16 @@ def load_run_result(run_dir: str) -> tuple[list[int], np.ndarray, np.ndarray, di
 def load_sweep(sweep_dir: str) -> dict[tuple[str, str], CellResult]:
     """Every finished cell of a sweep folder (``<scenario>/<method>/seeds<A>-<B>/``), the seed ranges of a
     (scenario, method) merged; the curves are cut to the evaluation points all ranges have. Unfinished cells are
-    left out; a seed that two ranges both hold is an error."""
+    left out, and files are skipped (a results page in ``SWEEP_DIR/results/`` holds no cell); a seed that two ranges
+    both hold is an error."""
     results: dict[tuple[str, str], CellResult] = {}
     for scenario in sorted(os.listdir(sweep_dir)):
+        if not os.path.isdir(os.path.join(sweep_dir, scenario)):
+            continue
         for method in sorted(os.listdir(os.path.join(sweep_dir, scenario))):
             method_dir = os.path.join(sweep_dir, scenario, method)
+            if not os.path.isdir(method_dir):
+                continue
             ranges = sorted((d for d in os.listdir(method_dir) if re.fullmatch(r"seeds\d+-\d+", d)),
                             key=lambda d: int(d[5:].split("-")[0]))
             parts = [load_run_result(os.path.join(method_dir, d)) for d in ranges

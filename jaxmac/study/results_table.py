@@ -1,27 +1,27 @@
 """A Markdown results table from finished run folders (their ``summary.json`` and ``config.json``).
 
-    python experiments/results_table.py RUN_DIR [RUN_DIR ...]
+    jaxmac table RUN_DIR [RUN_DIR ...]
 
 One row per run: scenario, algorithm, seeds, episodes per seed, final greedy discounted return (mean ± standard error
 over seeds, and the per-seed values), the optimal return where known, the fraction of it reached, the
 settings that differ from the scenario's defaults, the run's wall time, and — where the scenario has a ceiling
 (``jaxmac.scenarios.CEILINGS``) — the final return as the results pages measure it (the mean of each seed's last 10
 evaluations, undiscounted on Warehouse) and the episodes each seed needed to reach 90 % of the ceiling
-(``jaxmac.stats.episodes_to_fraction``; "–" for a seed that never did).
+(``jaxmac.study.stats.episodes_to_fraction``; "–" for a seed that never did).
 """
 
 from __future__ import annotations
 
-import argparse
 import json
 import pathlib
 
-from jaxmac.config import TrainConfig, scenario_config
 import numpy as np
 
+from jaxmac.config import TrainConfig
 from jaxmac.plotting import mean_and_standard_error
+from jaxmac.presets import scenario_config
 from jaxmac.scenarios import CEILINGS
-from jaxmac.stats import episodes_to_fraction, final_returns, load_run_result
+from jaxmac.study.stats import episodes_to_fraction, final_returns, load_run_result
 
 
 def _changed_settings(run_dir: pathlib.Path, scenario: str) -> str:
@@ -45,9 +45,12 @@ def _efficiency(run_dir: pathlib.Path, scenario: str) -> str:
     reach = episodes_to_fraction(episodes, curves, 0.9 * ceiling)
     got = reach[~np.isnan(reach)]
     per_seed = " ".join("–" if np.isnan(e) else f"{int(e):,}" for e in reach)
-    mean_reach = f"{got.mean():,.0f}" + ("" if len(got) == len(reach) else f" ({len(got)} of {len(reach)} seeds)")
+    if len(got):
+        mean_reach = f"{got.mean():,.0f}" + ("" if len(got) == len(reach) else f" ({len(got)} of {len(reach)} seeds)")
+    else:
+        mean_reach = "never"
     return (f"{' '.join(f'{v:.1f}' for v in finals)}; {finals.mean():.1f}, {finals.mean() / ceiling:.0%} | "
-            f"{per_seed}; {mean_reach if len(got) else 'never'}")
+            f"{per_seed}; {mean_reach}")
 
 
 def table_rows(run_dirs: list[pathlib.Path]) -> list[str]:
@@ -71,15 +74,9 @@ def table_rows(run_dirs: list[pathlib.Path]) -> list[str]:
     return rows
 
 
-def main(argv=None) -> None:
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("runs", nargs="+", type=pathlib.Path, help="finished run folders")
-    args = p.parse_args(argv)
-    missing = [str(r) for r in args.runs if not (r / "summary.json").is_file()]
+def table(run_dirs: list[pathlib.Path]) -> str:
+    """The table of ``run_dirs``; a ValueError naming the folders that hold no finished run."""
+    missing = [str(r) for r in run_dirs if not (r / "summary.json").is_file()]
     if missing:
-        raise SystemExit(f"no summary.json (run not finished?) in: {', '.join(missing)}")
-    print("\n".join(table_rows(args.runs)))
-
-
-if __name__ == "__main__":
-    main()
+        raise ValueError(f"no summary.json (run not finished?) in: {', '.join(missing)}")
+    return "\n".join(table_rows(run_dirs))

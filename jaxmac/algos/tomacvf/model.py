@@ -64,7 +64,8 @@ import jax.numpy as jnp
 from envs_jax.core import MacroEnv
 from jaxmac.algos.acting import epsilon_greedy
 from jaxmac.algos.base import Algorithm, default_optimizer, gradient_update
-from jaxmac.algos.settings import ToMacVFSettings
+from jaxmac.algos.targets import admissible_actions, conditional_greedy
+from jaxmac.algos.tomacvf.settings import ToMacVFSettings
 from jaxmac.buckets import length_bucketed, packed_row_sizes, run_bucketed
 from jaxmac.buffer import packing, views
 from jaxmac.buffer.episode import EpisodeSlot
@@ -87,7 +88,6 @@ from jaxmac.networks import (
 )
 from jaxmac.networks.mixers import mix_actions, qtran_penalties
 from jaxmac.schedules import linear_schedule
-from jaxmac.algos.targets import admissible_actions, conditional_greedy
 
 
 def network_configs(config: TrainConfig, env: MacroEnv) -> tuple[AgentNetConfig, MixerConfig]:

@@ -17,8 +17,9 @@ import time
 from typing import Any
 
 from jaxmac.config import TrainConfig
-from jaxmac.run import (_extended, check_new_run, extend_budget, lock_run_folder, read_meta, refuse_run_files,
-                        write_json_atomic)
+from jaxmac.runs.folders import lock_run_folder, read_meta, refuse_run_files, write_json_atomic
+from jaxmac.runs.loop import extend_budget, extended_meta
+from jaxmac.runs.resources import check_new_run
 
 
 def split_seeds(seeds: int, workers: int) -> list[tuple[int, int]]:
@@ -61,16 +62,16 @@ def train_workers(config: TrainConfig, seeds: int, out_dir: str, workers: int, p
 
 def resume_workers(out_dir: str, progress: bool = True, episodes: int | None = None,
                    checkpoint_seconds: float = 120.0) -> dict:
-    """Continue a worker run; ``episodes`` raises its budget first (see ``jaxmac.run.extend_budget``), after every
-    folder's budget was checked."""
+    """Continue a worker run; ``episodes`` raises its budget first (see ``jaxmac.runs.loop.extend_budget``), after
+    every folder's budget was checked."""
     with lock_run_folder(out_dir, "train --resume --workers"):
         meta = read_meta(out_dir)
         jobs = _worker_dirs(out_dir, meta["workers"])
         if episodes is not None:
-            extended = _extended(out_dir, meta, episodes)
+            extended = extended_meta(out_dir, meta, episodes)
             for d in jobs:  # every budget checked before any is written
                 if os.path.exists(os.path.join(d, "config.json")):
-                    _extended(d, read_meta(d), episodes)
+                    extended_meta(d, read_meta(d), episodes)
             write_json_atomic(os.path.join(out_dir, "config.json"), extended)
             meta = extended
             for d in jobs:
@@ -121,8 +122,8 @@ def _run_and_merge(out_dir: str, jobs: list[str], resume: bool, progress: bool, 
     for d in jobs:
         if _finished(d):
             continue  # this worker had finished before the interruption
-        cmd = [sys.executable, "-m", "jaxmac.workers", d, "--checkpoint-every", repr(float(checkpoint_seconds))] + (
-            ["--resume"] if resume else [])
+        cmd = [sys.executable, "-m", "jaxmac.runs.workers", d, "--checkpoint-every",
+               repr(float(checkpoint_seconds))] + (["--resume"] if resume else [])
         log = open(os.path.join(d, "worker.log"), "a")
         procs.append((subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT), log, d))
     bar = tqdm(total=total_episodes, unit="ep", desc=f"{len(jobs)} workers", disable=not progress,
@@ -179,8 +180,9 @@ def merge(out_dir: str, jobs: list[str], wall_seconds: float) -> dict[str, Any]:
 
 
 def _main(argv: list[str]) -> int:
-    """Worker entry point: ``python -m jaxmac.workers JOB_DIR [--checkpoint-every SECONDS] [--resume]``."""
-    from jaxmac.run import enable_compilation_cache, resume_run, train_run
+    """Worker entry point: ``python -m jaxmac.runs.workers JOB_DIR [--checkpoint-every SECONDS] [--resume]``."""
+    from jaxmac.runs.loop import resume_run, train_run
+    from jaxmac.runs.resources import enable_compilation_cache
 
     enable_compilation_cache()
     job_dir = argv[0]

@@ -1,0 +1,1 @@
+"""studies: sweeps' results pages and tables (``jaxmac results``, ``jaxmac table``)."""
