@@ -23,6 +23,7 @@ from typing import Any
 import jax
 import numpy as np
 
+from envs_jax.validation import is_integer
 from jaxmac.config import TrainConfig
 
 
@@ -82,7 +83,7 @@ def evaluate_policy(env, policy: Policy, episodes: int = 10, key: int | jax.Arra
     Episode ``i`` runs from ``k = jax.random.split(key, episodes)[i]`` (``key`` an int is ``jax.random.key(key)``) as
     ``jaxmac.collect.run_episode`` does: ``k_reset, k_steps = split(k)``, ``env.reset(k_reset)``, and step ``t`` splits
     ``split(k_steps, horizon)[t]`` into the policy's key and the env's."""
-    if isinstance(episodes, bool) or not isinstance(episodes, int) or episodes < 1:
+    if not is_integer(episodes) or episodes < 1:
         raise ValueError(f"episodes={episodes!r} must be a positive integer")
     keys = jax.random.split(jax.random.key(key) if isinstance(key, int) else key, episodes)
     stats = _evaluator(env)(policy, keys)
@@ -218,13 +219,14 @@ def load(run_dir: str) -> Run:
 
 def train(preset: str | TrainConfig | None = None, *, scenario: str | None = None, algorithm: str | None = None,
           seeds: int | None = None, out_dir: str | None = None, tiny: bool = False, paper: bool = False,
-          seed_offset: int = 0, progress: bool = True, **overrides) -> Run:
+          seed_offset: int = 0, progress: bool = True, log: str | None = None, **overrides) -> Run:
     """Train a run (``jaxmac.runs.train_run``, as ``jaxmac train`` does) and return it loaded (``load``).
 
     What to train: a preset name (``"quickstart"``; ``jaxmac train --help`` lists them), or ``scenario`` and
     ``algorithm`` (defaults ``boxpushing-6x6`` and ``tomacvf``; ``tiny``: test sizes, ``paper``: the publication's
     values), or a ``TrainConfig``; ``overrides`` are settings on top (``episodes=500``, ``lr=5e-4``). ``seeds``:
-    the preset's count, else 1. ``out_dir``: default ``runs/SCENARIO-ALGORITHM-TIME``."""
+    the preset's count, else 1. ``out_dir``: default ``runs/SCENARIO-ALGORITHM-TIME``. ``log``: ``"tensorboard"``,
+    ``"wandb"`` or ``"wandb:online"`` also logs the metrics there (``jaxmac train --log``)."""
     from jaxmac.presets import preset_config, scenario_config
     from jaxmac.runs import default_out_dir, enable_compilation_cache, train_run
 
@@ -249,5 +251,5 @@ def train(preset: str | TrainConfig | None = None, *, scenario: str | None = Non
         seeds = 1 if seeds is None else seeds
     out_dir = out_dir or default_out_dir(config)
     enable_compilation_cache()
-    train_run(config, seeds, out_dir, seed_offset=seed_offset, progress=progress)
+    train_run(config, seeds, out_dir, seed_offset=seed_offset, progress=progress, log=log)
     return load(out_dir)

@@ -19,11 +19,13 @@ import chex
 import jax
 import jax.numpy as jnp
 
+from envs_jax.validation import is_integer
 from jaxmac.seeds import across_seeds
+
 
 def bucket_sizes(full: int, count: int) -> tuple[int, ...]:
     """``count`` static lengths, halving from ``full``: ``bucket_sizes(100, 3) == (25, 50, 100)``; 1 = ``(full,)``."""
-    if not isinstance(count, int) or isinstance(count, bool) or count < 1:
+    if not is_integer(count) or count < 1:
         raise ValueError(f"length_buckets={count!r} must be a positive integer (1 = always the full length)")
     sizes = {max(1, -(-full // 2**k)) for k in range(count)}
     return tuple(sorted(sizes))

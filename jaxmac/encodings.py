@@ -16,6 +16,8 @@ import dataclasses
 import chex
 import jax.numpy as jnp
 
+from envs_jax.validation import is_integer
+
 
 @dataclasses.dataclass(frozen=True)
 class EncodingConfig:
@@ -29,7 +31,7 @@ class EncodingConfig:
     def __post_init__(self):
         for name in ("dim_t", "dim_tm"):
             d = getattr(self, name)
-            if not isinstance(d, int) or isinstance(d, bool) or d <= 0 or d % 2:
+            if not is_integer(d) or d <= 0 or d % 2:
                 raise ValueError(f"EncodingConfig.{name}={d!r} must be a positive even integer (e.g. 8, 16)")
         if not self.base > 1.0:
             raise ValueError(f"EncodingConfig.base={self.base!r} must be > 1 (standard: 10000.0)")

@@ -14,6 +14,8 @@ from __future__ import annotations
 
 import dataclasses
 
+from envs_jax.validation import is_integer
+
 N_TOOLS = 3  # tool types o ∈ {0, 1, 2}; human phase c < 3 requests tool c
 N_PHASES = 4  # human work phases
 STAGING_CAPACITY = 2  # tools F can hold ready for a pass
@@ -101,7 +103,7 @@ class WarehouseConfig:
             isinstance(d, tuple)
             and len(d) == n_h
             and all(isinstance(row, tuple) and len(row) == N_PHASES for row in d)
-            and all(isinstance(x, int) and not isinstance(x, bool) and x >= 1 for row in d for x in row)
+            and all(is_integer(x) and x >= 1 for row in d for x in row)
         )
         if not ok:
             raise ValueError(

@@ -35,6 +35,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
+from envs_jax.validation import is_integer
 from jaxmac.buffer import segments as seg
 
 _DTYPES = {
@@ -130,7 +131,7 @@ class SlotConfig:
     def __post_init__(self):
         for name in ("horizon", "num_agents", "obs_dim", "num_actions", "state_dim"):
             v = getattr(self, name)
-            if not isinstance(v, (int, np.integer)) or isinstance(v, bool) or v < 1:
+            if not is_integer(v) or v < 1:
                 raise ValueError(f"SlotConfig.{name}={v!r} must be a positive integer")
         if self.k_max is None:
             object.__setattr__(self, "k_max", int(self.horizon))

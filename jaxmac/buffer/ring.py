@@ -20,6 +20,7 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
+from envs_jax.validation import is_integer
 from jaxmac.buffer.episode import EpisodeSlot, SlotConfig, empty_slot
 
 
@@ -40,7 +41,7 @@ class RingState:
 
 def init(example: EpisodeSlot | SlotConfig, capacity: int) -> RingState:
     """An empty ring of ``capacity`` slots shaped like ``example`` (a slot or its config)."""
-    if not isinstance(capacity, int) or isinstance(capacity, bool) or capacity < 1:
+    if not is_integer(capacity) or capacity < 1:
         raise ValueError(f"ring.init: capacity={capacity!r} must be a positive integer")
     if isinstance(example, SlotConfig):
         example = empty_slot(example)
@@ -111,7 +112,7 @@ def sample(ring: RingState, key: chex.PRNGKey, batch_size: int) -> tuple[Episode
       batch: EpisodeSlot with leaves ``[B, ...]`` (feed it to ``jaxmac.buffer.views``).
       idx: i32[B] the ring positions drawn.
     """
-    if not isinstance(batch_size, int) or isinstance(batch_size, bool) or batch_size < 1:
+    if not is_integer(batch_size) or batch_size < 1:
         raise ValueError(f"ring.sample: batch_size={batch_size!r} must be a positive integer")
     idx = jax.random.randint(key, (batch_size,), 0, jnp.maximum(ring.count, 1), dtype=jnp.int32)
     return jax.tree_util.tree_map(lambda x: x[idx], ring.slots), idx

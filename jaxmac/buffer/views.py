@@ -35,6 +35,7 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
+from envs_jax.validation import is_integer
 from jaxmac.buffer import segments as seg
 from jaxmac.buffer.episode import EpisodeSlot, agent_accumulator
 
@@ -90,7 +91,7 @@ class MicroView:
 @_auto_batch
 def micro_view(slot: EpisodeSlot, n_step: int = 1) -> MicroView:
     """Every valid primitive step with its n-step target ingredients (DECISIONS D11)."""
-    if not isinstance(n_step, int) or isinstance(n_step, bool) or n_step < 1:
+    if not is_integer(n_step) or n_step < 1:
         raise ValueError(f"micro_view: n_step={n_step!r} must be a positive integer (1 = one-step TD)")
     cfg = slot.config
     h = cfg.horizon

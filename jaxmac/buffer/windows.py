@@ -24,6 +24,7 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
+from envs_jax.validation import is_integer
 from jaxmac.buffer import ring as ring_lib
 from jaxmac.buffer import views
 from jaxmac.buffer.episode import EpisodeSlot
@@ -66,7 +67,7 @@ def sample_windows(ring: ring_lib.RingState, key: chex.PRNGKey, batch_size: int,
 
 def draw_windows(ring: ring_lib.RingState, key: chex.PRNGKey, batch_size: int, length: int):
     """Which windows ``sample_windows`` takes: ring positions ``idx`` i32[B] and first steps i32[B]."""
-    if not isinstance(length, int) or isinstance(length, bool) or length < 0:
+    if not is_integer(length) or length < 0:
         raise ValueError(f"sample_windows: length={length!r} must be a non-negative integer (0 = whole episodes)")
     if length == 0:
         idx = jax.random.randint(key, (batch_size,), 0, jnp.maximum(ring.count, 1), dtype=jnp.int32)

@@ -39,16 +39,14 @@ import chex
 import flax.linen as nn
 import jax
 import jax.numpy as jnp
-import numpy as np
 
+from envs_jax.validation import is_integer
 from jaxmac.encodings import EncodingConfig, sinusoid
 from jaxmac.networks.inputs import NetInputs, validate_inputs
-from jaxmac.ops import mask_unavailable
-
 
 
 def _positive_int(owner: str, name: str, v: Any) -> None:
-    if not isinstance(v, (int, np.integer)) or isinstance(v, bool) or v < 1:
+    if not is_integer(v) or v < 1:
         raise ValueError(f"{owner}.{name}={v!r} must be a positive integer")
 
 
@@ -78,7 +76,7 @@ class AgentNetConfig:
         for name in ("num_agents", "obs_dim", "num_actions", "hidden", "fc"):
             _positive_int("AgentNetConfig", name, getattr(self, name))
         if not isinstance(self.head_hidden, tuple) or not all(
-            isinstance(w, (int, np.integer)) and not isinstance(w, bool) and w >= 1 for w in self.head_hidden
+            is_integer(w) and w >= 1 for w in self.head_hidden
         ):
             raise ValueError(
                 f"AgentNetConfig.head_hidden={self.head_hidden!r} must be a tuple of positive integers, e.g. (64,) or ()"

@@ -13,6 +13,7 @@ import socket
 import time
 from typing import Any
 
+from envs_jax.validation import is_integer
 from jaxmac.algos import registry  # noqa: F401  (registers every learner's settings, which config.json names)
 from jaxmac.config import TrainConfig
 
@@ -197,7 +198,7 @@ def read_meta(out_dir: str, trainable: bool = False) -> dict[str, Any]:
     if not isinstance(meta, dict) or not isinstance(meta.get("config"), dict):
         raise ValueError(f"{path} is not a jaxmac run's config (no 'config' settings); {fix}")
     needed = ("seeds", "seed_offset") + (("rounds_per_chunk",) if trainable and "workers" not in meta else ())
-    missing = [k for k in needed if not isinstance(meta.get(k), int) or isinstance(meta.get(k), bool)]
+    missing = [k for k in needed if not is_integer(meta.get(k))]
     if missing:
         raise ValueError(f"{path} is broken: it lacks {', '.join(missing)} (an integer each); {fix}")
     try:

@@ -31,6 +31,7 @@ import numpy as np
 import optax
 from flax import struct
 
+from envs_jax.validation import is_integer
 from jaxmac.algos.acting import epsilon_schedule
 from jaxmac.algos.families.centralised import joint_obs
 from jaxmac.algos.families.decentralised import init_agent_drqn
@@ -121,7 +122,7 @@ def macro_returns(reward: chex.Array, discount: chex.Array, bootstrap: chex.Arra
     Returns:
       f32[..., L] ``G_k`` (0 on padding).
     """
-    if not isinstance(n_step, int) or isinstance(n_step, bool) or n_step < 1:
+    if not is_integer(n_step) or n_step < 1:
         raise ValueError(f"macro_returns: n_step={n_step!r} must be a positive integer (1 = one-step TD)")
     length = reward.shape[-1]
     k = jnp.arange(length)
