@@ -82,7 +82,7 @@ def cmd_train(args) -> int:
     enable_compilation_cache()
     if args.finish:
         if args.resume or any(v is not None for v in (args.scenario, args.seeds, args.preset, args.workers,
-                                                       args.algorithm, args.episodes, args.out)) \
+                                                       args.algorithm, args.episodes, args.out, args.log)) \
                 or args.set or args.tiny or args.paper:
             raise ValueError("--finish ends a run as it stands and takes no other option than --devices")
         if is_worker_run(args.finish):
@@ -102,13 +102,14 @@ def cmd_train(args) -> int:
                                             ("--algorithm", args.algorithm is not None)) if given]
         if ignored:
             raise ValueError(f"--resume continues the run as it was configured; {', '.join(ignored)} cannot change it "
-                             "(only --episodes, to train it further, and --set for a run that diverged)")
+                             "(only --episodes, to train it further, --set for a run that diverged, and --log)")
         if is_worker_run(args.resume):
             summary = resume_workers(args.resume, progress=not args.no_progress, episodes=args.episodes,
-                                     checkpoint_seconds=args.checkpoint_every)
+                                     checkpoint_seconds=args.checkpoint_every, log=args.log)
         else:
             summary = resume_run(args.resume, progress=not args.no_progress, episodes=args.episodes,
-                                 assignments=args.set, devices=devices, checkpoint_seconds=args.checkpoint_every)
+                                 assignments=args.set, devices=devices, checkpoint_seconds=args.checkpoint_every,
+                                 log=args.log)
         out = args.resume
     else:
         if args.preset is not None:
@@ -145,10 +146,10 @@ def cmd_train(args) -> int:
         workers = 1 if args.workers is None else args.workers
         if workers != 1:  # train_workers validates the count
             summary = train_workers(config, seeds, out, workers, progress=not args.no_progress, seed_offset=offset,
-                                    checkpoint_seconds=args.checkpoint_every)
+                                    checkpoint_seconds=args.checkpoint_every, log=args.log)
         else:
             summary = train_run(config, seeds, out, seed_offset=offset, progress=not args.no_progress,
-                                devices=devices, checkpoint_seconds=args.checkpoint_every)
+                                devices=devices, checkpoint_seconds=args.checkpoint_every, log=args.log)
     if summary is not None:
         print(f"run folder: {out}")
         print(f"final greedy return ({summary['scenario']}, gamma={summary['discount']}): "
@@ -317,6 +318,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--checkpoint-every", type=float, default=120.0, metavar="SECONDS",
                    help="save a checkpoint (and the metrics rows it covers) at most every SECONDS of training "
                         "(default 120; 0 = after every chunk, for a flaky machine)")
+    p.add_argument("--log", default=None, choices=["none", "tensorboard", "wandb", "wandb:online"],
+                   help="also log the metrics, as checkpoints cover them, to TensorBoard event files in the run folder "
+                        "(pip install -e \".[tensorboard]\") or to a W&B run, offline unless wandb:online or "
+                        "WANDB_MODE says otherwise (\".[wandb]\"); kept by --resume, which can also change it "
+                        "(default none; docs/training.md)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_train)
 
@@ -390,6 +396,20 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("table", help="a Markdown table of finished run folders: final returns, settings, wall time")
     p.add_argument("runs", nargs="+", metavar="RUN_DIR", help="finished run folders")
     p.set_defaults(func=cmd_table)
+
+    from jaxmac.runs import qtot
+    from jaxmac.study import calibrate, overlay
+
+    for name, module, func, about in (
+            ("calibrate", calibrate, cmd_calibrate, "measure what a sweep cell costs here (episodes/s per method "
+                                                    "and scenario) into the rates file of `jaxmac sweep --rates`"),
+            ("overlay", overlay, cmd_overlay, "one figure overlaying the learning curves of jaxmac runs and of "
+                                              "original MacroMARL runs"),
+            ("qtot", qtot, cmd_qtot, "ToMacVF's Q_tot along one greedy episode of a run, beside the return-to-go")):
+        p = sub.add_parser(name, help=about, description=module.__doc__,
+                           formatter_class=argparse.RawDescriptionHelpFormatter)
+        module.add_arguments(p)
+        p.set_defaults(func=func)
     return parser
 
 

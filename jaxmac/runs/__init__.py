@@ -30,6 +30,8 @@ The modules, one job each:
     resources.py    compilation cache, host devices, seed sharding, the budget and memory checks before compiling
     loop.py         train, resume, finish, extend, change a diverged run's settings; the chunk loop; the run's end
     workers.py      several training processes on one machine (``jaxmac train --workers N``), merged at the end
+    loggers.py      live views of a run: TensorBoard event files or W&B (``--log``), fed the rows a checkpoint covers
+    evaluation.py   ``jaxmac eval``: greedy episodes of a run's checkpoint, played, printed and drawn
 
 This package re-exports the names callers use. ``workers`` is imported on first use of one of its names only: it is
 also the workers' entry point (``python -m jaxmac.runs.workers``), which must find it not imported yet.

@@ -23,6 +23,8 @@ from jaxmac.runs.divergence import (OUT_OF_BOUNDS_COLUMN, check_finite, flag_out
                                     value_bounds_of)
 from jaxmac.runs.folders import (LOCK_FILE, cut_back, is_finished, lock_run_folder, read_meta, refuse_run_files,
                                  run_files, size_of, write_json_atomic)
+from jaxmac.runs.loggers import (Guarded, check_new_stream, open_logger, require, rounds_of_chunks,
+                                 rounds_of_metrics_file, with_logger)
 from jaxmac.runs.metrics_csv import append_chunks, cut_metrics
 from jaxmac.runs.programs import programs_for
 from jaxmac.runs.resources import abstract_state, check_budget, check_memory, placed, seed_sharding
@@ -40,9 +42,11 @@ def train_run(
     progress: bool = True,
     stop_after_chunks: int | None = None,
     devices: int = 1,
+    log: str | None = None,
 ) -> dict[str, Any] | None:
     """Train ``seeds`` seeds (``seed_offset … seed_offset+seeds-1``) into ``out_dir``, their states sharded over
-    ``devices`` devices (``seed_sharding``).
+    ``devices`` devices (``seed_sharding``). ``log``: ``"tensorboard"``, ``"wandb"`` or ``"wandb:online"`` also
+    logs the metrics there (``jaxmac.runs.loggers``; recorded in config.json, so a resume goes on logging).
 
     ``out_dir`` is locked for the call (``lock_run_folder``) and must hold no file of a run. ``stop_after_chunks``
     stops early (as if killed) after that many chunks of this call, checkpointing first — used by tests of resume.
@@ -56,10 +60,11 @@ def train_run(
     with lock_run_folder(out_dir, "train"):
         try:
             refuse_run_files(out_dir)
+            check_new_stream(log, out_dir)
             programs = programs_for(config, rounds_per_chunk)
             check_memory(programs, seeds, devices)
-            meta = {"config": config.to_dict(), "seeds": seeds, "seed_offset": seed_offset,
-                    "rounds_per_chunk": programs.trainer.rounds_per_chunk, "jax": jax.__version__}
+            meta = with_logger({"config": config.to_dict(), "seeds": seeds, "seed_offset": seed_offset,
+                                "rounds_per_chunk": programs.trainer.rounds_per_chunk, "jax": jax.__version__}, log)
             write_json_atomic(os.path.join(out_dir, "config.json"), meta)
         except BaseException:
             if created:
@@ -252,12 +257,15 @@ def _record(out_dir: str, start: Start) -> list[str]:
 
 def resume_run(out_dir: str, checkpoint_seconds: float = 120.0, progress: bool = True,
                stop_after_chunks: int | None = None, episodes: int | None = None,
-               assignments: list[str] | None = None, devices: int = 1) -> dict[str, Any] | None:
+               assignments: list[str] | None = None, devices: int = 1,
+               log: str | None = None) -> dict[str, Any] | None:
     """Continue the run in ``out_dir`` from its newest usable checkpoint, on ``devices`` devices (any number that
     divides its seeds: where the seeds run does not change the result).
 
     ``episodes`` raises its budget first (``extend_budget``), so a finished run can be trained further;
-    ``assignments`` change the settings of a diverged run (``change_diverged_settings``). Everything is checked
+    ``assignments`` change the settings of a diverged run (``change_diverged_settings``); ``log`` (``"none"``,
+    ``"tensorboard"``, ...) changes where its metrics are logged besides metrics.csv (default: as recorded in its
+    config.json; a stream turned on mid-run starts with the rows trained so far). Everything is checked
     before anything is written: the folder's lock, the settings (against the checkpoint's shapes), the checkpoint.
     A damaged newest checkpoint (or one whose rows metrics.csv lacks) falls back to an older one, saying so on
     stderr; a run without a checkpoint starts over only if it has no record to lose (no metrics rows, no summary).
@@ -269,6 +277,9 @@ def resume_run(out_dir: str, checkpoint_seconds: float = 120.0, progress: bool =
             new_meta = _changed_settings(out_dir, new_meta, assignments)
         if episodes is not None:
             new_meta = extended_meta(out_dir, new_meta, episodes)
+        if log is not None:
+            new_meta = with_logger(new_meta, log)
+        require(new_meta.get("log"))
         programs = programs_for(TrainConfig.from_dict(new_meta["config"]), new_meta["rounds_per_chunk"])
         sharding = seed_sharding(new_meta["seeds"], devices)
         start = start_point(out_dir, programs, new_meta, need_rows=True)
@@ -324,7 +335,13 @@ def _loop(programs, state, chunk, out_dir, meta, checkpoint_seconds, progress, s
     pending: list[tuple[dict[str, np.ndarray], int]] = []
     advice = (f"{out_dir} keeps its last checkpoint: free space, then `jaxmac train --resume {out_dir}` continues "
               "from it")
+    # --log: the rows a checkpoint covers go on to TensorBoard / W&B once it is saved; first those of metrics.csv
+    # the stream lacks (a resumed run, a stream turned on mid-run)
+    logger = open_logger(out_dir, meta)
+    logging = Guarded(logger) if logger is not None else None
     try:
+        if logging is not None:
+            logging.log_rows(rounds_of_metrics_file(metrics_path, logger.last_step))
         while chunk < total:
             state, metrics = programs.chunk(state)
             metrics = dict(jax.device_get(metrics))
@@ -362,7 +379,7 @@ def _loop(programs, state, chunk, out_dir, meta, checkpoint_seconds, progress, s
             if chunk == total or stopping or time.perf_counter() - last_ckpt >= checkpoint_seconds:
                 size = size_of(metrics_path)
                 append_chunks(metrics_path, pending, seed_ids, advice)  # fsynced before the checkpoint
-                pending = []
+                covered, pending = pending, []
                 try:
                     save_checkpoint(mngr, chunk, state, out_dir, advice)
                 except BaseException:
@@ -371,10 +388,14 @@ def _loop(programs, state, chunk, out_dir, meta, checkpoint_seconds, progress, s
                 write_json_atomic(os.path.join(out_dir, "progress.json"),
                                   {"chunks_done": chunk, "wall_seconds": wall_before + time.perf_counter() - start})
                 last_ckpt = time.perf_counter()
+                if logging is not None:
+                    logging.log_rows(rounds_of_chunks(metrics_path, covered, seed_ids))
             if stopping:
                 return None
     finally:
         bar.close()
+        if logging is not None:
+            logging.close()
         try:
             mngr.close()
         except Exception:  # a failed save may fail again here; the first error is the one to report

@@ -18,6 +18,7 @@ from typing import Any
 
 from jaxmac.config import TrainConfig
 from jaxmac.runs.folders import lock_run_folder, read_meta, refuse_run_files, write_json_atomic
+from jaxmac.runs.loggers import check_new_stream, log_choice, require, with_logger
 from jaxmac.runs.loop import extend_budget, extended_meta
 from jaxmac.runs.resources import check_new_run
 
@@ -40,33 +41,41 @@ def _worker_dirs(out_dir: str, workers: int) -> list[str]:
 
 
 def train_workers(config: TrainConfig, seeds: int, out_dir: str, workers: int, progress: bool = True,
-                  seed_offset: int = 0, checkpoint_seconds: float = 120.0) -> dict:
+                  seed_offset: int = 0, checkpoint_seconds: float = 120.0, log: str | None = None) -> dict:
     """Train ``seeds`` seeds (from ``seed_offset``) in ``workers`` processes and merge the results into
-    ``out_dir`` (locked by this process meanwhile; each worker locks its own folder)."""
+    ``out_dir`` (locked by this process meanwhile; each worker locks its own folder). ``log``: each worker logs its
+    seeds to a stream of its own in its folder (``jaxmac.runs.loggers``)."""
     shares = [(seed_offset + offset, count) for offset, count in split_seeds(seeds, workers)]
     check_new_run(config, seeds)  # budget and memory (the workers share this machine), before anything is written
     with lock_run_folder(out_dir, "train --workers"):
         refuse_run_files(out_dir)
+        log = log_choice(log)
+        check_new_stream(log, out_dir)
         write_json_atomic(os.path.join(out_dir, "config.json"),
                           {"config": config.to_dict(), "seeds": seeds, "seed_offset": seed_offset, "workers": workers,
-                           "shares": shares})
+                           "shares": shares, **({"log": log} if log else {})})
         jobs = []
         for d, (offset, count) in zip(_worker_dirs(out_dir, workers), shares):
             os.makedirs(d, exist_ok=True)
             write_json_atomic(os.path.join(d, "job.json"),
-                              {"config": config.to_dict(), "seeds": count, "seed_offset": offset})
+                              {"config": config.to_dict(), "seeds": count, "seed_offset": offset,
+                               **({"log": log} if log else {})})
             jobs.append(d)
         return _run_and_merge(out_dir, jobs, resume=False, progress=progress, total_episodes=config.episodes * seeds,
                               checkpoint_seconds=checkpoint_seconds)
 
 
 def resume_workers(out_dir: str, progress: bool = True, episodes: int | None = None,
-                   checkpoint_seconds: float = 120.0) -> dict:
+                   checkpoint_seconds: float = 120.0, log: str | None = None) -> dict:
     """Continue a worker run; ``episodes`` raises its budget first (see ``jaxmac.runs.loop.extend_budget``), after
-    every folder's budget was checked."""
+    every folder's budget was checked; ``log`` changes where every worker logs (default: as recorded)."""
     with lock_run_folder(out_dir, "train --resume --workers"):
         meta = read_meta(out_dir)
         jobs = _worker_dirs(out_dir, meta["workers"])
+        require(meta.get("log") if log is None else log)
+        if log is not None:
+            _change_logger(out_dir, meta, jobs, log_choice(log))
+            meta = read_meta(out_dir)
         if episodes is not None:
             extended = extended_meta(out_dir, meta, episodes)
             for d in jobs:  # every budget checked before any is written
@@ -84,6 +93,21 @@ def resume_workers(out_dir: str, progress: bool = True, episodes: int | None = N
         return _run_and_merge(out_dir, jobs, resume=True, progress=progress,
                               total_episodes=meta["config"]["episodes"] * meta["seeds"],
                               checkpoint_seconds=checkpoint_seconds)
+
+
+def _change_logger(out_dir: str, meta: dict, jobs: list[str], log: str | None) -> None:
+    """Record ``log`` in the run's config.json, its workers' job.json and (where a worker started) config.json."""
+    entry = {"log": log} if log else {}
+    for d in jobs:
+        job_path = os.path.join(d, "job.json")
+        with open(job_path) as f:
+            job = json.load(f)
+        write_json_atomic(job_path, dict({k: v for k, v in job.items() if k != "log"}, **entry))
+        if os.path.exists(os.path.join(d, "config.json")):
+            with lock_run_folder(d, "train --resume --log"):
+                write_json_atomic(os.path.join(d, "config.json"), with_logger(read_meta(d), log))
+    write_json_atomic(os.path.join(out_dir, "config.json"),
+                      dict({k: v for k, v in meta.items() if k != "log"}, **entry))
 
 
 def is_worker_run(out_dir: str) -> bool:
@@ -193,7 +217,7 @@ def _main(argv: list[str]) -> int:
     with open(os.path.join(job_dir, "job.json")) as f:
         job = json.load(f)
     train_run(TrainConfig.from_dict(job["config"]), job["seeds"], job_dir, seed_offset=job["seed_offset"],
-              progress=False, checkpoint_seconds=seconds)
+              progress=False, checkpoint_seconds=seconds, log=job.get("log"))
     return 0
 
 
