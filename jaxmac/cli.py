@@ -11,6 +11,9 @@
     jaxmac sweep ablation --protocol cpu                  # one of the paper's experiments, cell by cell
     jaxmac results experiments/sweeps/cpu                 # its results page -> experiments/sweeps/cpu/results/
     jaxmac table runs/RUN_DIR ...                         # a Markdown table of finished runs
+    jaxmac calibrate --pairs tomacvf@overcooked-B         # measured rates for `jaxmac sweep --dry-run --rates`
+    jaxmac overlay --out fig.png --run "A=runs/RUN" ...   # curves of several runs (and originals) on one figure
+    jaxmac qtot runs/RUN_DIR                              # ToMacVF's Q_tot along a greedy episode vs the return
 """
 
 from __future__ import annotations
@@ -346,7 +349,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--dry-run", action="store_true",
                    help="list the cells, their status and estimated cost, run nothing")
     p.add_argument("--rates", default=os.path.join("experiments", "protocol_rates.json"),
-                   help="with --dry-run (and --cluster ray's ETA): measured rates (experiments/calibrate_protocol.py) "
+                   help="with --dry-run (and --cluster ray's ETA): measured rates (`jaxmac calibrate`) "
                         "to estimate cell costs")
     p.add_argument("--checkpoint-every", type=float, default=120.0, metavar="SECONDS",
                    help="checkpoint each cell at most every SECONDS of training (as train; default 120)")
@@ -401,10 +404,10 @@ def build_parser() -> argparse.ArgumentParser:
     from jaxmac.study import calibrate, overlay
 
     for name, module, func, about in (
-            ("calibrate", calibrate, cmd_calibrate, "measure what a sweep cell costs here (episodes/s per method "
-                                                    "and scenario) into the rates file of `jaxmac sweep --rates`"),
-            ("overlay", overlay, cmd_overlay, "one figure overlaying the learning curves of jaxmac runs and of "
-                                              "original MacroMARL runs"),
+            ("calibrate", calibrate, cmd_calibrate, ("measure what a sweep cell costs here (episodes/s per method "
+                                                     "and scenario) into the rates file of `jaxmac sweep --rates`")),
+            ("overlay", overlay, cmd_overlay, ("one figure overlaying the learning curves of jaxmac runs and of "
+                                               "original MacroMARL runs")),
             ("qtot", qtot, cmd_qtot, "ToMacVF's Q_tot along one greedy episode of a run, beside the return-to-go")):
         p = sub.add_parser(name, help=about, description=module.__doc__,
                            formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -431,6 +434,24 @@ def cmd_table(args) -> int:
 
     print(table([pathlib.Path(r) for r in args.runs]))
     return 0
+
+
+def cmd_calibrate(args) -> int:
+    from jaxmac.study.calibrate import run
+
+    return run(args)
+
+
+def cmd_overlay(args) -> int:
+    from jaxmac.study.overlay import run
+
+    return run(args)
+
+
+def cmd_qtot(args) -> int:
+    from jaxmac.runs.qtot import run
+
+    return run(args)
 
 
 def os_error_line(err: OSError) -> str:

@@ -46,19 +46,14 @@ def test_greedy_choices_are_the_argmax_of_the_values_printed_beside_them(algorit
 
 
 def test_qtot_along_a_greedy_episode_is_what_the_loss_fits():
-    """``experiments/qtot_along_episode.py``: on a greedy episode every agent takes its greedy (or running) action,
+    """``jaxmac qtot`` (jaxmac/runs/qtot.py): on a greedy episode every agent takes its greedy (or running) action,
     so the greedy joint Q_tot at the episode's rows is the Q_tot of the taken actions that ToMacVF's micro-TD loss
     fits — its mean equals the loss's ``q_tot_mean`` on the same slot; the return-to-go is the discounted sum."""
-    import pathlib
-    import sys
-
     import jax.numpy as jnp
 
     from jaxmac.algos.base import Progress
     from jaxmac.buffer.episode import SlotConfig, write_episode
-
-    sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1] / "experiments"))
-    from qtot_along_episode import qtot_rows
+    from jaxmac.runs.qtot import qtot_rows
 
     config = scenario_config("boxpushing-6x6", tiny=True)
     env = make_env(config)
@@ -92,6 +87,26 @@ def tiny_run(tmp_path_factory) -> str:
     out = str(tmp_path_factory.mktemp("eval") / "run")
     train_run(scenario_config("boxpushing-6x6", tiny=True).override(**TINY_RUN), 2, out, progress=False)
     return out
+
+
+def test_qtot_prints_q_tot_beside_the_return_to_go_of_a_runs_greedy_episode(tiny_run, capsys):
+    """``jaxmac qtot RUN --seed-index 1``: the rows of ``qtot_along_episode`` (seed 1's greedy episode at the newest
+    checkpoint), the last one the bootstrap row of a truncated episode; a seed index out of range is one line."""
+    from jaxmac.cli import main
+    from jaxmac.runs.qtot import qtot_along_episode
+
+    assert main(["qtot", tiny_run, "--seed-index", "1"]) == 0
+    out = capsys.readouterr().out.splitlines()
+    q_tot, to_go, length = qtot_along_episode(tiny_run, 1)
+    assert out[0] == f"{tiny_run}, seed index 1: greedy episode of {length} steps"
+    rows = {int(line.split()[0]): line.split()[1:] for line in out[2:]}
+    assert 0 in rows and length - 1 in rows
+    assert float(rows[0][0]) == pytest.approx(q_tot[0], abs=0.051)
+    assert float(rows[0][1]) == pytest.approx(to_go[0], abs=0.051)
+    if length == 20:  # the tiny horizon: truncated, its bootstrap row printed
+        assert rows[length][1:] == ["(bootstrap", "row)"]
+    assert main(["qtot", tiny_run, "--seed-index", "2"]) == 2
+    assert "has 2 seeds" in capsys.readouterr().err
 
 
 def test_eval_prints_the_returns_of_n_episodes_and_draws_the_first(tiny_run, capsys):

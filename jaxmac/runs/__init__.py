@@ -32,6 +32,7 @@ The modules, one job each:
     workers.py      several training processes on one machine (``jaxmac train --workers N``), merged at the end
     loggers.py      live views of a run: TensorBoard event files or W&B (``--log``), fed the rows a checkpoint covers
     evaluation.py   ``jaxmac eval``: greedy episodes of a run's checkpoint, played, printed and drawn
+    qtot.py         ``jaxmac qtot``: ToMacVF's Q_tot along a greedy episode of a run, beside the return-to-go
 
 This package re-exports the names callers use. ``workers`` is imported on first use of one of its names only: it is
 also the workers' entry point (``python -m jaxmac.runs.workers``), which must find it not imported yet.

@@ -251,7 +251,7 @@ def cell_status(out_dir: str, cell: Cell) -> str:
 
 
 def load_rates(path: str) -> dict[str, dict]:
-    """Measured training rates per ``"method@scenario"`` (``experiments/calibrate_protocol.py``'s file); {} if none."""
+    """Measured training rates per ``"method@scenario"`` (``jaxmac calibrate``'s file); {} if none."""
     import json
 
     if not os.path.exists(path):
