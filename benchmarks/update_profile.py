@@ -1,7 +1,7 @@
 """Where a round of a learner with length buckets spends its time: collection, and the update at every bucket.
 
     python benchmarks/update_profile.py [--algorithm mac_iaicc] [--scenario overcooked-A] [--epsilon 1.0]
-                                        [--repeats 5] [--set KEY=VALUE ...]
+                                        [--repeats 5] [--set KEY=VALUE ...] [--ops K] [--roofline]
 
 One seed, ``jax.jit`` of each piece, the scenario's configuration: a first-finished collection of episodes with
 freshly initialised parameters (ε as given) — a round's ``num_envs`` for the on-policy learners (their batch), a
@@ -9,7 +9,8 @@ replay batch's ``batch_size`` for ToMacVF — then ``algorithm.update`` on that 
 ``bucket_sizes(H, length_buckets)`` that holds it (the trainer picks the smallest), and the full length; for ToMacVF also the update with ``packing`` (the episodes packed into the fewest rows of
 ``packed_row_sizes(B, length_buckets)``). ``--run RUN_DIR`` (ToMacVF) samples the batch from that run's replay ring
 (its first seed's, as checkpointed) instead of collecting it. Printed: milliseconds per call (median of ``--repeats``) and the batch's real entries (``--ops K``: also the K
-costliest XLA operation kinds of the full-length update, from a ``jax.profiler`` trace); with
+costliest XLA operation kinds of the full-length update, from a ``jax.profiler`` trace; ``--roofline``, ToMacVF:
+the update's milliseconds per network part beside the part's hand-counted GFLOP and the rate it runs at); with
 other jobs on the machine read the ratios between the lines, not the milliseconds.
 """
 
@@ -34,6 +35,10 @@ def main(argv=None) -> None:
     p.add_argument("--ops", type=int, default=0, metavar="K",
                    help="also trace the full-length update with jax.profiler and print the K costliest XLA operation "
                         "kinds (matmul fusions, loops, copies, ...) in ms per update")
+    p.add_argument("--roofline", action="store_true",
+                   help="ToMacVF: the full-length update's time per network part (from a jax.profiler trace, each "
+                        "XLA operation attributed to the part its metadata names) beside the part's hand-counted "
+                        "GFLOP: the table of rates that says where the update runs far below the matmul rate")
     p.add_argument("--run", default=None, metavar="RUN_DIR",
                    help="ToMacVF: sample the batch from this run's ring (its config, with --set applied, replaces "
                         "--scenario)")
@@ -104,6 +109,11 @@ def main(argv=None) -> None:
     progress = Progress(episodes=zero, env_steps=zero, updates=zero)
     plain = config.override(length_buckets=1)
     update = jax.jit(make_algorithm(plain, env).update)
+    if args.roofline:
+        if args.algorithm != "tomacvf":
+            p.error("--roofline counts ToMacVF's network parts; use it with --algorithm tomacvf")
+        update_args = (state.params, state.target_params, state.opt_state, batch, jax.random.key(2), progress)
+        print_roofline(update, update_args, config, env, batch.length.shape[0], full + 1, args.repeats)
     if args.ops:
         print(f"  XLA operation kinds of the full-length update (ms per update; a loop's time includes its body's):")
         for kind, ms in op_kinds(update, (state.params, state.target_params, state.opt_state, batch, jax.random.key(2),
@@ -124,15 +134,11 @@ def main(argv=None) -> None:
         print(f"  update with packing ({rows} rows needed, {size} run of {E}): {ms:8.1f} ms")
 
 
-def op_kinds(fn, args, repeats: int) -> list[tuple[str, float]]:
-    """[(operation kind, ms per call)], costliest first, from a ``jax.profiler`` trace of ``repeats`` calls of the
-    jitted ``fn``: XLA's thunk names without their numbers (``ynn_fusion`` = XNNPACK matmul fusions, ``dot``,
-    ``while`` = the scans, ``copy``/``transpose`` fusions = layout changes, ...)."""
-    import collections
+def trace_events(fn, args, repeats: int) -> list[dict]:
+    """The complete-duration events of a ``jax.profiler`` trace of ``repeats`` calls of the jitted ``fn``."""
     import glob
     import gzip
     import json
-    import re
     import tempfile
 
     import jax
@@ -146,7 +152,107 @@ def op_kinds(fn, args, repeats: int) -> list[tuple[str, float]]:
         # the perfetto trace (the profiler writes a second, TensorBoard-format json.gz beside it)
         (path,) = glob.glob(os.path.join(trace_dir, "**", "perfetto_trace.json.gz"), recursive=True)
         with gzip.open(path) as f:
-            events = [e for e in json.load(f)["traceEvents"] if e.get("ph") == "X"]
+            return [e for e in json.load(f)["traceEvents"] if e.get("ph") == "X"]
+
+
+# (part, what its XLA operations' metadata contains), first match wins: the network parts of ToMacVF's update
+PARTS = (
+    ("agent GRU recurrence", ("TemporalAgentNet", "/while")),
+    ("agent Dense fc + GRU input", ("TemporalAgentNet", "torso")),
+    ("agent Q head", ("TemporalAgentNet", "head")),
+    ("agent input features", ("TemporalAgentNet",)),
+    ("ATPG temporal attention", ("atpg/temporal",)),
+    ("ATPG agent attention", ("atpg/agents",)),
+    ("ATPG tokens", ("atpg/",)),
+    ("mixer hyper-networks", ("Mixer",)),
+)
+OTHER = "losses, targets, gathers, optimizer"
+
+
+def part_of(op_name: str) -> str:
+    for part, needles in PARTS:
+        if all(needle in op_name for needle in needles):
+            return part
+    return OTHER
+
+
+def part_gflop(config, env, rows_batch: int, rows_time: int) -> dict[str, float]:
+    """Hand-counted GFLOP of one update per part: matmuls only (2 per multiply-add), counted once for the online
+    forward, twice for its backward (the input and the weight gradients) and once for the target forward — 4
+    forward passes. The causal attention is counted whole (T² per agent), as the reference implementation runs it.
+    """
+    from jaxmac.algos.tomacvf.model import network_configs
+
+    agent, mixer = network_configs(config, env)
+    n, h, a = agent.num_agents, agent.hidden, agent.num_actions
+    rows = rows_batch * rows_time  # B·T rows, each with n agents
+    d, hid, emb, s = mixer.embed, mixer.hyper_hidden, mixer.embed, mixer.state_dim
+    atpg = mixer.atpg
+    token_in = agent.feature_dim  # the token features have the agent features' width
+    head_in = h + agent.encoding.dim_tm
+    head = sum(i * o for i, o in zip((head_in,) + agent.head_hidden, agent.head_hidden + (a,)))
+    fwd = {
+        "agent GRU recurrence": rows * n * h * 3 * h,
+        "agent Dense fc + GRU input": rows * n * (agent.feature_dim * agent.fc + agent.fc * 3 * h),
+        "agent Q head": rows * n * head,
+        "agent input features": 0,
+        "ATPG tokens": rows * n * (token_in * atpg.token_hidden + atpg.token_hidden * d),
+        "ATPG temporal attention": rows * n * 3 * d * d + rows_batch * n * rows_time ** 2 * d * 2,
+        "ATPG agent attention": rows * n * 3 * d * d + rows * n * n * d * 2,
+        "mixer hyper-networks": rows * (n * ((s + d) * hid + hid * emb) + (s + d) * hid + hid * emb
+                                        + s * hid + hid * emb + s * hid + hid),
+        OTHER: 0,
+    }
+    return {part: 4 * 2 * macs / 1e9 for part, macs in fwd.items()}
+
+
+def print_roofline(update, update_args, config, env, rows_batch: int, rows_time: int, repeats: int) -> None:
+    """Print the update's time per part (trace events attributed through the compiled HLO's metadata), the part's
+    hand-counted GFLOP and the rate it runs at."""
+    import collections
+    import re
+    import statistics
+    import time
+
+    import jax
+
+    names = {}
+    for line in update.lower(*update_args).compile().as_text().splitlines():
+        m = re.match(r'\s*(?:ROOT )?%([\w.\-]+) = .*?metadata=\{op_name="([^"]+)"', line)
+        if m:
+            names[m.group(1)] = m.group(2)
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        jax.block_until_ready(update(*update_args))
+        times.append(time.perf_counter() - t0)
+    total = 1000 * statistics.median(times)
+    ms = collections.Counter()
+    for event in trace_events(update, update_args, repeats):
+        op = names.get(event["name"])
+        # a loop's event spans its body's operations: count the body's (they carry the same part), not the loop
+        if op is not None and not event["name"].startswith("while"):
+            ms[part_of(op)] += event["dur"] / 1000 / repeats
+    traced = sum(ms.values())
+    gflop = part_gflop(config, env, rows_batch, rows_time)
+    print(f"  roofline of the full-length update ({total:.1f} ms per update; {traced:.1f} ms of it in traced "
+          f"operations; GFLOP hand-counted, matmuls of the online forward + backward + target forward):")
+    print(f"    {'part':36s} {'GFLOP':>7s} {'ms':>7s} {'GFLOP/s':>8s} {'share':>6s}")
+    for part in [p for p, _ in PARTS] + [OTHER]:
+        rate = f"{gflop[part] / ms[part] * 1000:8.1f}" if gflop[part] and ms[part] else f"{'-':>8s}"
+        print(f"    {part:36s} {gflop[part]:7.2f} {ms[part]:7.1f} {rate} {ms[part] / traced:6.1%}")
+    all_gflop = sum(gflop.values())
+    print(f"    {'all':36s} {all_gflop:7.2f} {traced:7.1f} {all_gflop / traced * 1000:8.1f} {1:6.0%}")
+
+
+def op_kinds(fn, args, repeats: int) -> list[tuple[str, float]]:
+    """[(operation kind, ms per call)], costliest first, from a ``jax.profiler`` trace of ``repeats`` calls of the
+    jitted ``fn``: XLA's thunk names without their numbers (``ynn_fusion`` = XNNPACK matmul fusions, ``dot``,
+    ``while`` = the scans, ``copy``/``transpose`` fusions = layout changes, ...)."""
+    import collections
+    import re
+
+    events = trace_events(fn, args, repeats)
     kinds = collections.Counter()
     for e in events:
         if not e["name"].startswith(("Thunk", "$", "PjitFunction")):

@@ -110,6 +110,71 @@ def temporal_mask(length: int, window: int | None) -> np.ndarray:
     return ok if window is None else ok & (lag < window)
 
 
+def query_blocks(length: int, window: int | None, blocks: int = 2) -> list[tuple[int, int, int]]:
+    """[(first query row, end query row, first key row)]: the rows ``[0, length)`` cut into ``blocks`` query blocks,
+    each attending to keys from its first key row up to its own end (the causal mask is zero beyond, and before
+    ``start - window + 1`` with a window), so the masked-out upper triangle is never computed."""
+    edges = sorted({round(length * j / blocks) for j in range(blocks + 1)})
+    return [(a, b, 0 if window is None else max(0, a - window + 1)) for a, b in zip(edges[:-1], edges[1:])]
+
+
+def _attention_block(q, k, v, allowed):
+    """softmax(q kᵀ / √d | allowed) v and the probabilities: q f32[..., Tq, d], k, v f32[..., Tk, d], allowed
+    bool[..., Tq, Tk] (every query row allows at least one key) -> (out f32[..., Tq, d], p f32[..., Tq, Tk])."""
+    logits = (q @ jnp.swapaxes(k, -1, -2)) * (1.0 / np.sqrt(q.shape[-1]))
+    p = jax.nn.softmax(jnp.where(allowed, logits, -jnp.inf), axis=-1)
+    return p @ v, p
+
+
+@jax.custom_vjp
+def causal_attention(q, k, v, segment, window):
+    """Causal single-head attention within segments, by query blocks (``query_blocks``).
+
+    Row t attends to rows s ≤ t of its own segment (and t − s < window when ``window`` is an i32[] > 0).
+    Args: q, k, v f32[..., T, d]; segment i32[..., T] (its leading axes broadcast against q's); window i32[]
+    (0 = none).
+    Returns f32[..., T, d]. The backward pass is the textbook one (dV = Pᵀ dO, dS = P ⊙ (dP − rowsum(dO ⊙ O)))
+    on the stored probabilities of each block, which XLA runs faster on CPU than the autodiff of the masked softmax.
+    """
+    return _causal_attention_fwd(q, k, v, segment, window)[0]
+
+
+def _block_masks(segment, window):
+    """(first query row, end query row, first key row, allowed bool[..., Tq, Tk]) per query block."""
+    t = np.arange(segment.shape[-1])
+    for a, b, k0 in query_blocks(segment.shape[-1], None):
+        lag = t[a:b, None] - t[None, k0:b]
+        allowed = (lag >= 0) & ((window <= 0) | (lag < window))
+        yield a, b, k0, allowed & (segment[..., a:b, None] == segment[..., None, k0:b])
+
+
+def _causal_attention_fwd(q, k, v, segment, window):
+    outs, probs = [], []
+    for a, b, k0, allowed in _block_masks(segment, window):
+        out, p = _attention_block(q[..., a:b, :], k[..., k0:b, :], v[..., k0:b, :], allowed)
+        outs.append(out)
+        probs.append(p)
+    out = jnp.concatenate(outs, axis=-2)
+    return out, (q, k, v, segment, window, out, probs)
+
+
+def _causal_attention_bwd(res, d_out):
+    q, k, v, segment, window, out, probs = res
+    scale = 1.0 / np.sqrt(q.shape[-1])
+    dq, dk, dv = jnp.zeros_like(q), jnp.zeros_like(k), jnp.zeros_like(v)
+    row_dot = jnp.sum(d_out * out, axis=-1, keepdims=True)  # rowsum(dO ⊙ O) [..., T, 1]
+    for (a, b, k0, _), p in zip(_block_masks(segment, window), probs):
+        do = d_out[..., a:b, :]
+        dv = dv.at[..., k0:b, :].add(jnp.swapaxes(p, -1, -2) @ do)
+        ds = p * (do @ jnp.swapaxes(v[..., k0:b, :], -1, -2) - row_dot[..., a:b, :]) * scale
+        dq = dq.at[..., a:b, :].set(ds @ k[..., k0:b, :])
+        dk = dk.at[..., k0:b, :].add(jnp.swapaxes(ds, -1, -2) @ q[..., a:b, :])
+    return dq, dk, dv, None, None
+
+
+causal_attention.defvjp(_causal_attention_fwd, _causal_attention_bwd)
+
+
 class TemporalSelfAttention(nn.Module):
     """Single-head causal self-attention over time, independently per agent (shared weights).
 
@@ -125,12 +190,10 @@ class TemporalSelfAttention(nn.Module):
         d = self.embed
         x = jnp.swapaxes(tok, -2, -3)  # [..., n, T, d]: plain batched matmuls (faster on CPU than einsum)
         q, k, v = (nn.Dense(d, use_bias=False, name=name)(x) for name in ("query", "key", "value"))
-        logits = (q @ jnp.swapaxes(k, -1, -2)) / np.sqrt(d)  # [..., n, T, T]
-        mask = temporal_mask(x.shape[-2], self.window)
-        if segment is not None:
-            mask = mask & (segment[..., None, :, None] == segment[..., None, None, :])  # [..., 1, T, T]
-        logits = jnp.where(mask, logits, -jnp.inf)  # the diagonal is always allowed: no empty row
-        return jnp.swapaxes(jax.nn.softmax(logits, axis=-1) @ v, -2, -3)
+        if segment is None:
+            segment = jnp.zeros(tok.shape[:-2], jnp.int32)
+        window = jnp.asarray(self.window or 0, jnp.int32)
+        return jnp.swapaxes(causal_attention(q, k, v, segment[..., None, :], window), -2, -3)  # same for all agents
 
 
 class AgentAttention(nn.Module):
