@@ -17,14 +17,42 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxmac.config import TrainConfig
-from jaxmac.runs.checkpoints import (Start, checkpointer, drop_checkpoints_after, save_checkpoint, say_skipped,
-                                     skipped_text, start_point)
-from jaxmac.runs.divergence import (OUT_OF_BOUNDS_COLUMN, check_finite, flag_out_of_bounds, out_of_bounds_message,
-                                    value_bounds_of)
-from jaxmac.runs.folders import (LOCK_FILE, cut_back, is_finished, lock_run_folder, read_meta, refuse_run_files,
-                                 run_files, size_of, write_json_atomic)
-from jaxmac.runs.loggers import (Guarded, check_new_stream, open_logger, require, rounds_of_chunks,
-                                 rounds_of_metrics_file, with_logger)
+from jaxmac.runs.checkpoints import (
+    Start,
+    checkpointer,
+    drop_checkpoints_after,
+    save_checkpoint,
+    say_skipped,
+    skipped_text,
+    start_point,
+)
+from jaxmac.runs.divergence import (
+    OUT_OF_BOUNDS_COLUMN,
+    check_finite,
+    flag_out_of_bounds,
+    out_of_bounds_message,
+    value_bounds_of,
+)
+from jaxmac.runs.folders import (
+    LOCK_FILE,
+    cut_back,
+    is_finished,
+    lock_run_folder,
+    read_meta,
+    refuse_run_files,
+    run_files,
+    size_of,
+    write_json_atomic,
+)
+from jaxmac.runs.loggers import (
+    Guarded,
+    check_new_stream,
+    open_logger,
+    require,
+    rounds_of_chunks,
+    rounds_of_metrics_file,
+    with_logger,
+)
 from jaxmac.runs.metrics_csv import append_chunks, cut_metrics
 from jaxmac.runs.programs import programs_for
 from jaxmac.runs.resources import abstract_state, check_budget, check_memory, placed, seed_sharding
@@ -43,6 +71,7 @@ def train_run(
     stop_after_chunks: int | None = None,
     devices: int = 1,
     log: str | None = None,
+    end_early=None,
 ) -> dict[str, Any] | None:
     """Train ``seeds`` seeds (``seed_offset … seed_offset+seeds-1``) into ``out_dir``, their states sharded over
     ``devices`` devices (``seed_sharding``). ``log``: ``"tensorboard"``, ``"wandb"`` or ``"wandb:online"`` also
@@ -50,6 +79,8 @@ def train_run(
 
     ``out_dir`` is locked for the call (``lock_run_folder``) and must hold no file of a run. ``stop_after_chunks``
     stops early (as if killed) after that many chunks of this call, checkpointing first — used by tests of resume.
+    ``end_early``: a callable of the metrics.csv path (e.g. ``early_end.SettledRule(...).reason``) asked after every
+    checkpoint; a sentence ends the run there (final evaluation, summary with ``ended_early``, plot).
     Returns the summary (None if stopped).
     """
     if seeds < 1:
@@ -74,7 +105,7 @@ def train_run(
             keys = jax.vmap(jax.random.key)(jnp.arange(seed_offset, seed_offset + seeds))
             state = programs.init(keys)
             return _loop(programs, state, 0, out_dir, meta, checkpoint_seconds, progress, stop_after_chunks, 0.0,
-                         sharding)
+                         sharding, end_early)
         except BaseException as err:
             if not isinstance(err, OSError):  # a full disk: the folder stays, for the resume its message suggests
                 _forget_unstarted(out_dir, created)
@@ -258,7 +289,7 @@ def _record(out_dir: str, start: Start) -> list[str]:
 def resume_run(out_dir: str, checkpoint_seconds: float = 120.0, progress: bool = True,
                stop_after_chunks: int | None = None, episodes: int | None = None,
                assignments: list[str] | None = None, devices: int = 1,
-               log: str | None = None) -> dict[str, Any] | None:
+               log: str | None = None, end_early=None) -> dict[str, Any] | None:
     """Continue the run in ``out_dir`` from its newest usable checkpoint, on ``devices`` devices (any number that
     divides its seeds: where the seeds run does not change the result).
 
@@ -269,6 +300,7 @@ def resume_run(out_dir: str, checkpoint_seconds: float = 120.0, progress: bool =
     before anything is written: the folder's lock, the settings (against the checkpoint's shapes), the checkpoint.
     A damaged newest checkpoint (or one whose rows metrics.csv lacks) falls back to an older one, saying so on
     stderr; a run without a checkpoint starts over only if it has no record to lose (no metrics rows, no summary).
+    ``end_early``: as in ``train_run``.
     """
     with lock_run_folder(out_dir, "train --resume") if os.path.isdir(out_dir) else _no_lock():
         meta = read_meta(out_dir, trainable=True)
@@ -308,11 +340,11 @@ def resume_run(out_dir: str, checkpoint_seconds: float = 120.0, progress: bool =
         wall = _wall_seconds(out_dir) if start.chunk else 0.0
         cut_metrics(os.path.join(out_dir, "metrics.csv"), start.metrics, rounds_done)
         return _loop(programs, start.state, start.chunk, out_dir, new_meta, checkpoint_seconds, progress,
-                     stop_after_chunks, wall, sharding)
+                     stop_after_chunks, wall, sharding, end_early)
 
 
 def _loop(programs, state, chunk, out_dir, meta, checkpoint_seconds, progress, stop_after_chunks, wall_before,
-          sharding=None):
+          sharding=None, end_early=None):
     from tqdm import tqdm
 
     state = placed(state, sharding)
@@ -329,6 +361,7 @@ def _loop(programs, state, chunk, out_dir, meta, checkpoint_seconds, progress, s
     last_ckpt = time.perf_counter()
     last_eval = float("nan")
     done_here = 0
+    ended = None  # why the run ends before its budget (end_early), if it does
     bounds = value_bounds_of(config, trainer.env)
     # the metrics of the chunks since the last checkpoint: their rows are written with the checkpoint that covers
     # them, so metrics.csv never runs ahead of the run's checkpoints (but for a crash between the two)
@@ -390,6 +423,9 @@ def _loop(programs, state, chunk, out_dir, meta, checkpoint_seconds, progress, s
                 last_ckpt = time.perf_counter()
                 if logging is not None:
                     logging.log_rows(rounds_of_chunks(metrics_path, covered, seed_ids))
+                ended = end_early(metrics_path) if end_early is not None and chunk < total else None
+                if ended:
+                    break
             if stopping:
                 return None
     finally:
@@ -401,10 +437,10 @@ def _loop(programs, state, chunk, out_dir, meta, checkpoint_seconds, progress, s
         except Exception:  # a failed save may fail again here; the first error is the one to report
             pass
     wall = wall_before + time.perf_counter() - start
-    return _finish(programs, state, out_dir, meta, wall)
+    return _finish(programs, state, out_dir, meta, wall, ended if chunk < total else None)
 
 
-def _finish(programs, state, out_dir, meta, wall_seconds):
+def _finish(programs, state, out_dir, meta, wall_seconds, ended_early: str | None = None):
     """Final greedy evaluation per seed, summary.json and the learning-curve plot."""
     from jaxmac.plotting import plot_learning_curve
 
@@ -428,6 +464,8 @@ def _finish(programs, state, out_dir, meta, wall_seconds):
         "final_greedy_return_undiscounted_mean": float(undisc.mean()),
         "optimal_return": OPTIMAL_DISC_RETURN.get(config.scenario),
     }
+    if ended_early:
+        summary["ended_early"] = ended_early
     if trainer.evaluate_greedy:  # the stochastic evaluation policy of the originals (sampled, un-mixed)
         sampled, sampled_undisc = programs.sampled_returns(state.params, keys)
         summary.update(final_sampled_return=sampled.tolist(), final_sampled_return_mean=float(sampled.mean()),

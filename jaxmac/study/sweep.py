@@ -1,6 +1,6 @@
 """The paper's experiments as sweeps: named sets of (method, scenario) cells × seeds, run into one folder.
 
-    jaxmac sweep EXPERIMENT [--protocol cpu|paper] [--out DIR] [--seeds N|A:B] [--devices N] [--dry-run]
+    jaxmac sweep EXPERIMENT [--protocol cpu|full|paper|smoke] [--out DIR] [--seeds N|A:B] [--devices N] [--dry-run]
 
 A *cell* is one ordinary run folder (``jaxmac train``'s): a method (a learner with its settings) on a scenario for a
 range of seeds. The sweep plans every cell of the experiment and protocol, skips cells already finished (their
@@ -27,7 +27,10 @@ from typing import Any
 
 from jaxmac.config import TrainConfig
 from jaxmac.presets import scenario_config
+from jaxmac.runs.early_end import SettledRule
 from jaxmac.scenarios import BOXPUSHING, FAMILIES, OVERCOOKED, WAREHOUSE, family
+from jaxmac.study.stats import return_column
+
 
 @dataclasses.dataclass(frozen=True)
 class Method:
@@ -66,6 +69,7 @@ class Cell:
     episodes: int
     tiny: bool = False
     scale_schedules: bool = False  # a budget cut shortens the warm-up and ε schedule in proportion
+    end_early: SettledRule | None = None  # the protocol's rule for ending before the budget
 
     @property
     def path(self) -> str:
@@ -152,14 +156,16 @@ class Protocol:
     about: str
     tiny: bool = False  # tiny networks and budgets (a smoke run of the sweep's plumbing)
     scale_schedules: bool = False  # see Cell.scale_schedules
-    not_run: tuple[tuple[str, str, str], ...] = ()  # (method name, scenario family, why the cell is not run)
+    # (method name, scenario or scenario family, why the cell is not run)
+    not_run: tuple[tuple[str, str, str], ...] = ()
+    end_early: SettledRule | None = None  # a cell may end before its budget once its curves have settled
 
     def budget(self, scenario: str, paper_budget: int) -> int:
         return min(paper_budget, dict(self.budgets).get(family(scenario), paper_budget))
 
     def not_run_reason(self, method: str, scenario: str) -> str | None:
-        for name, fam, why in self.not_run:
-            if name == method and fam == family(scenario):
+        for name, where, why in self.not_run:
+            if name == method and where in (scenario, family(scenario)):
                 return why
         return None
 
@@ -177,6 +183,28 @@ _NOT_RUN_CPU = (
     ("avf", "warehouse", _SLOW_WHY.format(what="recurrent per-agent Q over whole episodes", rate="0.24 (Warehouse-E)",
                                           steps=300, episodes="3K", hours="~14 h")),
 )
+_HOURS_WHY = "{rate} training episodes per second of one seed on one core here (jaxmac calibrate): {hours} per cell"
+_NOT_RUN_FULL = (
+    ("tomacvf-paper", "overcooked", "the publication's table diverges on Overcooked (its target is copied after every "
+                                    "gradient step; docs/tomacvf-settings.md): the tomacvf cells run jaxmac's settings"),
+    ("tomacvf-paper", "warehouse", "the publication's γ = 1 diverges on Warehouse (Q_tot past the ceiling by 12K "
+                                   "episodes; docs/tomacvf-settings.md): the tomacvf cells run jaxmac's settings"),
+    ("maccen_ddrqn", "overcooked", _HOURS_WHY.format(rate="about 0.6", hours="4 seeds x 100K episodes ~ 185 h")),
+    ("macdec_ddrqn", "overcooked", _HOURS_WHY.format(rate="under 0.6", hours="over 185 h")),
+    ("avf", "overcooked", _HOURS_WHY.format(rate="0.56", hours="4 seeds x 100K episodes ~ 200 h")),
+    ("avf", "warehouse", _HOURS_WHY.format(rate="0.24 (Warehouse-E)", hours="4 seeds x 100K episodes ~ 460 h")),
+) + tuple(
+    (m, "warehouse-E", "ablation on Overcooked-B only in this protocol: " + _HOURS_WHY.format(
+        rate=rate, hours=hours)) for m, rate, hours in (
+        ("tomacvf-wo-atpg", "about 3 (as ToMacVF)", "~38 h"), ("tomacvf-wo-sjert", "3.1", "~36 h"),
+        ("tomacvf-wo-both", "about 3", "~36 h"))
+) + tuple(
+    (m, scenario, "the mixers on Overcooked-A only in this protocol: " + _HOURS_WHY.format(rate=rate, hours=hours))
+    for m, rate, hours in (("tomacvf-vdn", "about 7 (as ToMacVF, Overcooked-B)", "~19 h at 120K"),
+                           ("tomacvf-qplex", "4.9 (Overcooked-B)", "~27 h at 120K"),
+                           ("tomacvf-qtran", "7.5 (Overcooked-B)", "~18 h at 120K"))
+    for scenario in ("overcooked-B", "overcooked-C")
+)
 PROTOCOLS = {
     "paper": Protocol("paper", 20, (), "20 seeds, the paper's budget per scenario (a GPU or a long campaign)"),
     "cpu": Protocol(
@@ -185,6 +213,13 @@ PROTOCOLS = {
         "40K-120K), the warm-up and exploration schedules shortened in proportion; the value baselines not run where "
         "their update makes a cell cost hours: about 12 hours of a 2-core CPU", scale_schedules=True,
         not_run=_NOT_RUN_CPU),
+    "full": Protocol(
+        "full", 4, (),
+        "4 seeds at the paper's budget per scenario (Overcooked 100K/120K/100K, Warehouse 40K/40K/80K/80K/100K "
+        "episodes) with the paper's schedules; a cell ends early once every seed's evaluations of the last 20K "
+        "episodes stay within 2 % of their mean, after at least 40K; the cells that would cost far beyond ~12 "
+        "core-hours here are not run (the reason and the measured cost are listed)",
+        not_run=_NOT_RUN_FULL, end_early=SettledRule(40_000, 20_000, 0.02)),
     "smoke": Protocol("smoke", 1, (("boxpushing", 32), ("warehouse", 32), ("overcooked", 32)),
                       "1 seed, 32 episodes, tiny networks: checks a sweep's plumbing and decides nothing; ~25 s a "
                       "cell on a 2-core CPU, nearly all of it compiling the cell's own program (bp's 40 cells took "
@@ -219,7 +254,10 @@ def plan(experiment: str, protocol: str = "cpu", seeds: tuple[int, int] | None =
             if proto.not_run_reason(method.name, scenario) is not None:
                 continue
             budget = proto.budget(scenario, method.config(scenario, proto.tiny).episodes)
-            cells.append(Cell(experiment, method, scenario, first, count, budget, proto.tiny, proto.scale_schedules))
+            end_early = (None if proto.end_early is None else
+                         dataclasses.replace(proto.end_early, column=return_column(scenario)))
+            cells.append(Cell(experiment, method, scenario, first, count, budget, proto.tiny, proto.scale_schedules,
+                              end_early))
     if only is not None:
         cells = [c for c in cells if only in c.path]
         if not cells:
@@ -314,11 +352,13 @@ def run_cell(cell: Cell, out_dir: str, devices: int = 1, progress: bool = True, 
             return "skipped"
         log(f"{prefix}{cell.path}: {status}")
         record_attempt(path, "resume" if status == "interrupted" else "train", devices, where)
+        end_early = None if cell.end_early is None else cell.end_early.reason
         if status == "interrupted":
-            resume_run(path, progress=progress, devices=devices, checkpoint_seconds=checkpoint_seconds)
+            resume_run(path, progress=progress, devices=devices, checkpoint_seconds=checkpoint_seconds,
+                       end_early=end_early)
             return "resumed"
         train_run(cell.config(), cell.seeds, path, seed_offset=cell.first_seed, progress=progress,
-                  devices=devices, checkpoint_seconds=checkpoint_seconds)
+                  devices=devices, checkpoint_seconds=checkpoint_seconds, end_early=end_early)
         return "trained"
     finally:
         lock.release()
