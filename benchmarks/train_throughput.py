@@ -27,7 +27,6 @@ import argparse
 import json
 import subprocess
 import sys
-import time
 
 # The originals' recorded speed (docs/baselines.md §4): (episodes/CPU-s, env steps/CPU-s, which original).
 ORIGINAL = {
@@ -54,11 +53,11 @@ def measure(algorithm: str, scenario: str, seeds: int, seed_offset: int, chunks:
     checkpoint (its first ``seeds`` seeds; ``algorithm``, ``scenario`` and ``seed_offset`` are then the run's)."""
     import jax
     import jax.numpy as jnp
-    import numpy as np
 
     from jaxmac.algos.registry import make_algorithm
     from jaxmac.config import make_env
     from jaxmac.presets import scenario_config
+    from jaxmac.study.calibrate import time_chunks
     from jaxmac.trainer import make_train
 
     if run_dir is None:
@@ -84,22 +83,8 @@ def measure(algorithm: str, scenario: str, seeds: int, seed_offset: int, chunks:
         from jaxmac.runs import seed_sharding
 
         state = jax.device_put(state, seed_sharding(seeds, devices))
-    t0 = time.perf_counter()
-    chunk = jax.jit(trainer.seeds_chunk, donate_argnums=0).lower(state).compile()
-    compile_s = time.perf_counter() - t0
-    needed = config.start_train_episodes or config.batch_size
-    warm = 1 if run_dir else max(1, -(-needed // (config.num_envs * trainer.rounds_per_chunk)) + 1)
-    for _ in range(warm):  # fill the ring so that gradient steps really run
-        state, _ = chunk(state)
-    episodes = steps = 0
-    w0, c0 = time.perf_counter(), time.process_time()
-    for _ in range(chunks):
-        state, m = chunk(state)
-        m = jax.device_get(m)
-        episodes += seeds * trainer.rounds_per_chunk * config.num_envs
-        steps += int(np.sum(m["train_length"]) * config.num_envs)
-    return {"compile_s": compile_s, "wall_s": time.perf_counter() - w0, "cpu_s": time.process_time() - c0,
-            "episodes": episodes, "env_steps": steps}
+    # a run's state has a full ring already: one warm-up chunk
+    return time_chunks(trainer, state, seeds, chunks, fill_ring=run_dir is None)
 
 
 def run_workers(algorithm: str, scenario: str, seeds: int, workers: int, chunks: int,

@@ -66,7 +66,6 @@ def test_gradients_equal_those_of_the_dense_masked_softmax(seed, window):
 
 def test_query_blocks_cover_every_row_once():
     for length in (1, 2, 11, 201):
-        blocks = query_blocks(length, None)
-        assert [a for a, _, _ in blocks] == [0] + [b for _, b, _ in blocks[:-1]] and blocks[-1][1] == length
-        assert all(k0 == 0 for _, _, k0 in blocks)
-    assert query_blocks(10, 3) == [(0, 5, 0), (5, 10, 3)]
+        blocks = query_blocks(length)
+        assert [a for a, _ in blocks] == [0] + [b for _, b in blocks[:-1]] and blocks[-1][1] == length
+    assert query_blocks(10) == [(0, 5), (5, 10)] and query_blocks(9, 3) == [(0, 3), (3, 6), (6, 9)]

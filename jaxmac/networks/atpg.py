@@ -110,12 +110,11 @@ def temporal_mask(length: int, window: int | None) -> np.ndarray:
     return ok if window is None else ok & (lag < window)
 
 
-def query_blocks(length: int, window: int | None, blocks: int = 2) -> list[tuple[int, int, int]]:
-    """[(first query row, end query row, first key row)]: the rows ``[0, length)`` cut into ``blocks`` query blocks,
-    each attending to keys from its first key row up to its own end (the causal mask is zero beyond, and before
-    ``start - window + 1`` with a window), so the masked-out upper triangle is never computed."""
+def query_blocks(length: int, blocks: int = 2) -> list[tuple[int, int]]:
+    """[(first query row, end query row)]: the rows ``[0, length)`` cut into ``blocks`` query blocks; each attends to
+    the keys up to its own end (the causal mask is zero beyond), so the masked-out upper triangle is never computed."""
     edges = sorted({round(length * j / blocks) for j in range(blocks + 1)})
-    return [(a, b, 0 if window is None else max(0, a - window + 1)) for a, b in zip(edges[:-1], edges[1:])]
+    return list(zip(edges[:-1], edges[1:]))
 
 
 def _attention_block(q, k, v, allowed):
@@ -140,18 +139,18 @@ def causal_attention(q, k, v, segment, window):
 
 
 def _block_masks(segment, window):
-    """(first query row, end query row, first key row, allowed bool[..., Tq, Tk]) per query block."""
+    """(first query row, end query row, allowed bool[..., Tq, Tk] over keys 0 … end) per query block."""
     t = np.arange(segment.shape[-1])
-    for a, b, k0 in query_blocks(segment.shape[-1], None):
-        lag = t[a:b, None] - t[None, k0:b]
+    for a, b in query_blocks(segment.shape[-1]):
+        lag = t[a:b, None] - t[None, :b]
         allowed = (lag >= 0) & ((window <= 0) | (lag < window))
-        yield a, b, k0, allowed & (segment[..., a:b, None] == segment[..., None, k0:b])
+        yield a, b, allowed & (segment[..., a:b, None] == segment[..., None, :b])
 
 
 def _causal_attention_fwd(q, k, v, segment, window):
     outs, probs = [], []
-    for a, b, k0, allowed in _block_masks(segment, window):
-        out, p = _attention_block(q[..., a:b, :], k[..., k0:b, :], v[..., k0:b, :], allowed)
+    for a, b, allowed in _block_masks(segment, window):
+        out, p = _attention_block(q[..., a:b, :], k[..., :b, :], v[..., :b, :], allowed)
         outs.append(out)
         probs.append(p)
     out = jnp.concatenate(outs, axis=-2)
@@ -161,15 +160,15 @@ def _causal_attention_fwd(q, k, v, segment, window):
 def _causal_attention_bwd(res, d_out):
     q, k, v, segment, window, out, probs = res
     scale = 1.0 / np.sqrt(q.shape[-1])
-    dq, dk, dv = jnp.zeros_like(q), jnp.zeros_like(k), jnp.zeros_like(v)
+    dq, dk, dv = [], jnp.zeros_like(k), jnp.zeros_like(v)
     row_dot = jnp.sum(d_out * out, axis=-1, keepdims=True)  # rowsum(dO ⊙ O) [..., T, 1]
-    for (a, b, k0, _), p in zip(_block_masks(segment, window), probs):
+    for (a, b), p in zip(query_blocks(q.shape[-2]), probs):
         do = d_out[..., a:b, :]
-        dv = dv.at[..., k0:b, :].add(jnp.swapaxes(p, -1, -2) @ do)
-        ds = p * (do @ jnp.swapaxes(v[..., k0:b, :], -1, -2) - row_dot[..., a:b, :]) * scale
-        dq = dq.at[..., a:b, :].set(ds @ k[..., k0:b, :])
-        dk = dk.at[..., k0:b, :].add(jnp.swapaxes(ds, -1, -2) @ q[..., a:b, :])
-    return dq, dk, dv, None, None
+        dv = dv.at[..., :b, :].add(jnp.swapaxes(p, -1, -2) @ do)
+        ds = p * (do @ jnp.swapaxes(v[..., :b, :], -1, -2) - row_dot[..., a:b, :]) * scale
+        dq.append(ds @ k[..., :b, :])
+        dk = dk.at[..., :b, :].add(jnp.swapaxes(ds, -1, -2) @ q[..., a:b, :])
+    return jnp.concatenate(dq, axis=-2), dk, dv, None, None
 
 
 causal_attention.defvjp(_causal_attention_fwd, _causal_attention_bwd)

@@ -59,7 +59,6 @@ def measure_chunks(config, seeds: int, chunks: int) -> dict:
     episodes and env steps of all seeds."""
     import jax
     import jax.numpy as jnp
-    import numpy as np
 
     from jaxmac.algos.registry import make_algorithm
     from jaxmac.config import make_env
@@ -68,12 +67,24 @@ def measure_chunks(config, seeds: int, chunks: int) -> dict:
     env = make_env(config)
     trainer = make_train(config, env, make_algorithm(config, env))
     state = jax.jit(jax.vmap(trainer.init))(jax.vmap(jax.random.key)(jnp.arange(seeds)))
+    return time_chunks(trainer, state, seeds, chunks)
+
+
+def time_chunks(trainer, state, seeds: int, chunks: int, fill_ring: bool = True) -> dict:
+    """Compile ``trainer.seeds_chunk`` for ``state`` (leaves ``[seeds, ...]``), run warm-up chunks — until the ring
+    holds a batch and gradient steps run when ``fill_ring``, else one — then time ``chunks`` chunks: compile seconds,
+    wall and CPU seconds, training episodes and env steps of all seeds."""
+    import jax
+    import numpy as np
+
+    config = trainer.config
     t0 = time.perf_counter()
     chunk = jax.jit(trainer.seeds_chunk, donate_argnums=0).lower(state).compile()
     compile_s = time.perf_counter() - t0
     needed = config.start_train_episodes or config.batch_size
-    for _ in range(max(1, -(-needed // (config.num_envs * trainer.rounds_per_chunk)) + 1)):
-        state, _ = chunk(state)  # fill the ring so that gradient steps really run
+    warm = max(1, -(-needed // (config.num_envs * trainer.rounds_per_chunk)) + 1) if fill_ring else 1
+    for _ in range(warm):
+        state, _ = chunk(state)
     episodes = steps = 0
     w0, c0 = time.perf_counter(), time.process_time()
     for _ in range(chunks):
