@@ -2,16 +2,23 @@
 
     python benchmarks/sjert_vs_jert.py --scenario boxpushing-6x6 --episodes 4000 --seeds 4 [--set KEY=VALUE ...]
                                        [--out experiments/sjert_vs_jert] [--devices 2]
+    python benchmarks/sjert_vs_jert.py --scenario overcooked-B --protocol full --seeds 0:2   # and 2:4 on a 2nd core
+    python benchmarks/sjert_vs_jert.py --scenario overcooked-B --protocol full --report      # the table when done
 
 Trains two run folders one after the other in this process (``OUT/<scenario>/tomacvf/…`` and
 ``OUT/<scenario>/tomacvf-wo-sjert/…``, the sweep's ``tomacvf`` and ``tomacvf-wo-sjert`` methods: Mac-JERT is the
 squeezed joint sequence of macro-observations, not packed), skipping a finished one and resuming an interrupted one,
-then prints one table — final return (mean ± s.e. of each seed's last 10 evaluations), Welch's p-value, wall time,
-training episodes and gradient steps per second, bytes per stored episode (the ring's slot, which both views read)
-and per materialised view (Mac-SJERT's micro- and macro-views against the Mac-JERT view) — and writes one figure of
-both learning curves (mean ± s.e.) to ``OUT/<scenario>/sjert_vs_jert.png``. Time it on an otherwise idle machine.
-"""
+then prints one table — final return (mean ± s.e. of each seed's last 10 evaluations), Welch's p-value, episodes to
+90 % of the ceiling (mean over the seeds that got there), wall time, training episodes and gradient steps per second,
+bytes per stored episode (the ring's slot, which both views read) and per materialised view (Mac-SJERT's micro- and
+macro-views against the Mac-JERT view) — and writes one figure of both learning curves (mean ± s.e.) to
+``OUT/<scenario>/sjert_vs_jert.png``. Time it on an otherwise idle machine.
 
+With ``--protocol NAME`` the two runs are that sweep protocol's cells (its budget for the scenario, its schedules and
+its rule for ending early) in its sweep folder (default ``experiments/sweeps/NAME``): a cell the sweep already ran
+is read, not run again, and two processes with ``--seeds 0:2`` and ``--seeds 2:4`` train the seed halves on two
+cores. The table merges every finished seed range of the two methods in the folder; ``--report`` only prints it.
+"""
 from __future__ import annotations
 
 import argparse
@@ -41,18 +48,42 @@ def view_bytes(config) -> dict[str, int]:
             "jert_view": size(jax.eval_shape(views.jert_view, slot))}
 
 
-def run_row(run_dir: str) -> dict:
-    """The table's numbers for one finished run folder."""
+def run_row(run_dirs: list[str], scenario: str) -> dict:
+    """The table's numbers for the finished seed ranges ``run_dirs`` of one method (merged: rates are their seeds'
+    episodes and gradient steps over their summed wall time)."""
     import pandas as pd
 
-    from jaxmac.study.stats import final_returns, load_run_result
+    from jaxmac.scenarios import CEILINGS
+    from jaxmac.study.stats import episodes_to_fraction, final_returns, load_run_result
 
-    seeds, episodes, curves, summary = load_run_result(run_dir)
-    metrics = pd.read_csv(os.path.join(run_dir, "metrics.csv"))
-    updates = metrics.groupby("seed")["updates"].max().sum()
-    wall = summary["wall_seconds"]
-    return {"finals": final_returns(curves), "episodes": episodes, "curves": curves, "wall_s": wall,
-            "episodes_per_s": len(seeds) * summary["episodes"] / wall, "updates_per_s": updates / wall}
+    parts = [load_run_result(d) for d in run_dirs]
+    points = min(p[1].shape[0] for p in parts)
+    episodes, curves = parts[0][1][:points], np.concatenate([p[2][:, :points] for p in parts])
+    updates = sum(pd.read_csv(os.path.join(d, "metrics.csv")).groupby("seed")["updates"].max().sum() for d in run_dirs)
+    wall = sum(p[3]["wall_seconds"] for p in parts)
+    seed_episodes = sum(len(p[0]) * p[3]["episodes"] for p in parts)
+    ceiling = CEILINGS.get(scenario)
+    reach = (episodes_to_fraction(episodes, curves, 0.9 * ceiling) if ceiling is not None
+             else np.full(len(curves), np.nan))
+    return {"finals": np.concatenate([final_returns(p[2]) for p in parts]), "episodes": episodes, "curves": curves,
+            "wall_s": wall, "episodes_per_s": seed_episodes / wall, "updates_per_s": updates / wall, "reach": reach,
+            "ended_early": [p[3]["ended_early"] for p in parts if p[3].get("ended_early")]}
+
+
+def finished_ranges(out: str, scenario: str, method: str) -> list[str]:
+    """The finished seed-range folders ``OUT/<scenario>/<method>/seeds<A>-<B>`` (a summary.json), by first seed."""
+    method_dir = os.path.join(out, scenario, method)
+    if not os.path.isdir(method_dir):
+        return []
+    names = sorted((d for d in os.listdir(method_dir) if d.startswith("seeds")), key=lambda d: int(d[5:].split("-")[0]))
+    return [os.path.join(method_dir, d) for d in names if os.path.exists(os.path.join(method_dir, d, "summary.json"))]
+
+
+def _reach_text(reach: np.ndarray) -> str:
+    got = reach[~np.isnan(reach)]
+    if not len(got):
+        return "never"
+    return f"{got.mean():,.0f}" + ("" if len(got) == len(reach) else f" ({len(got)} of {len(reach)} seeds)")
 
 
 def main(argv=None) -> None:
@@ -61,55 +92,92 @@ def main(argv=None) -> None:
 
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--scenario", default="boxpushing-6x6", choices=list(SCENARIOS))
-    p.add_argument("--episodes", type=int, default=4000, help="training episodes per seed, both runs")
+    p.add_argument("--episodes", type=int, default=None, help="training episodes per seed, both runs (default 4000)")
     p.add_argument("--seeds", type=seed_range, default=(0, 4), help="N (seeds 0..N-1) or A:B")
     p.add_argument("--set", dest="assignments", action="append", default=[], metavar="KEY=VALUE",
                    help="a setting for both runs (repeatable)")
     p.add_argument("--devices", type=int, default=1, help="host devices the seeds are sharded over")
-    p.add_argument("--out", default=os.path.join("experiments", "sjert_vs_jert"))
+    p.add_argument("--out", default=None,
+                   help="folder of the runs (default experiments/sjert_vs_jert, or the protocol's sweep folder)")
+    p.add_argument("--protocol", default=None,
+                   help="run the two methods as this sweep protocol's cells (its budget, schedules and early end; "
+                        "--episodes and --set are then refused)")
+    p.add_argument("--report", action="store_true", help="train nothing: print the table of the finished runs")
     p.add_argument("--tiny", action="store_true", help="tiny networks (a smoke check of the command, not a result)")
     p.add_argument("--no-progress", action="store_true")
     args = p.parse_args(argv)
-    if args.episodes < 1:
+    if args.episodes is not None and args.episodes < 1:
         raise SystemExit(f"--episodes {args.episodes}: need at least 1")
 
     from jaxmac.runs import enable_compilation_cache, use_host_devices
 
     use_host_devices(args.devices)  # before JAX starts
-    from jaxmac.presets import scenario_config
     from jaxmac.plotting import plot_curves
-    from jaxmac.study.stats import welch_p
-    from jaxmac.study.sweep import TOMACVF, WO_SJERT, Cell, run_sweep
+    from jaxmac.presets import scenario_config
+    from jaxmac.study.stats import return_column, welch_p
+    from jaxmac.study.sweep import PROTOCOLS, TOMACVF, WO_SJERT, Cell, run_sweep
 
-    extra = scenario_config(args.scenario, tiny=args.tiny).override_strings(args.assignments).flat_dict()
-    base = scenario_config(args.scenario, tiny=args.tiny).flat_dict()
-    changed = tuple((k, v) for k, v in extra.items() if base[k] != v)
-    methods = [dataclasses.replace(m, overrides=changed + m.overrides) for m in (TOMACVF, WO_SJERT)]
     first, count = args.seeds
-    cells = [Cell("sjert_vs_jert", m, args.scenario, first, count, args.episodes, args.tiny) for m in methods]
-    enable_compilation_cache()
-    run_sweep(cells, args.out, devices=args.devices, progress=not args.no_progress)
+    if args.protocol is not None:
+        if args.protocol not in PROTOCOLS:
+            raise SystemExit(f"--protocol {args.protocol!r}: valid protocols are {list(PROTOCOLS)}")
+        if args.assignments or args.episodes is not None:
+            raise SystemExit("--protocol sets the budget and the settings: drop --episodes and --set")
+        proto = PROTOCOLS[args.protocol]
+        out = args.out or os.path.join("experiments", "sweeps", args.protocol)
+        methods, changed = [TOMACVF, WO_SJERT], ()
+        cells = []
+        for m in methods:
+            if (why := proto.not_run_reason(m.name, args.scenario)) is not None:
+                raise SystemExit(f"protocol {args.protocol} does not run {m.name} on {args.scenario}: {why}")
+            budget = proto.budget(args.scenario, m.config(args.scenario, proto.tiny).episodes)
+            rule = None if proto.end_early is None else dataclasses.replace(proto.end_early,
+                                                                            column=return_column(args.scenario))
+            cells.append(Cell("sjert_vs_jert", m, args.scenario, first, count, budget, proto.tiny,
+                              proto.scale_schedules, rule))
+    else:
+        out = args.out or os.path.join("experiments", "sjert_vs_jert")
+        extra = scenario_config(args.scenario, tiny=args.tiny).override_strings(args.assignments).flat_dict()
+        base = scenario_config(args.scenario, tiny=args.tiny).flat_dict()
+        changed = tuple((k, v) for k, v in extra.items() if base[k] != v)
+        methods = [dataclasses.replace(m, overrides=changed + m.overrides) for m in (TOMACVF, WO_SJERT)]
+        episodes = 4000 if args.episodes is None else args.episodes
+        cells = [Cell("sjert_vs_jert", m, args.scenario, first, count, episodes, args.tiny) for m in methods]
+    if not args.report:
+        enable_compilation_cache()
+        run_sweep(cells, out, devices=args.devices, progress=not args.no_progress)
 
-    rows = {m.label: run_row(os.path.join(args.out, c.path)) for m, c in zip(methods, cells)}
+    ranges = {m.label: finished_ranges(out, args.scenario, m.name) for m in methods}
+    missing = [label for label, dirs in ranges.items() if not dirs]
+    if missing:
+        raise SystemExit(f"no finished run of {', '.join(missing)} in {os.path.join(out, args.scenario)} yet")
+    rows = {label: run_row(dirs, args.scenario) for label, dirs in ranges.items()}
     sizes = view_bytes(cells[0].config())
     sjert, jert = rows[TOMACVF.label], rows[WO_SJERT.label]
-    print(f"\n{args.scenario}, {count} seeds x {args.episodes} episodes, settings changed: {dict(changed) or 'none'}")
-    print("| buffer | final return | Welch p | wall s (compile included) | episodes/s | gradient steps/s | stored bytes/episode "
-          "| view bytes/episode |")
-    print("|---|---|---|---|---|---|---|---|")
+    seeds = {label: len(r["finals"]) for label, r in rows.items()}
+    budget = f"{cells[0].episodes:,} episodes" + (f" ({args.protocol} protocol)" if args.protocol else "")
+    print(f"\n{args.scenario}, seeds {seeds} x {budget}, settings changed: {dict(changed) or 'none'}")
+    for label, r in rows.items():
+        for why in r["ended_early"]:
+            print(f"  {label} ended early: {why}")
+    print("| buffer | final return | Welch p | episodes to 90 % | wall s (compile included) | episodes/s "
+          "| gradient steps/s | stored bytes/episode | view bytes/episode |")
+    print("|---|---|---|---|---|---|---|---|---|")
     for label, row, view in ((TOMACVF.label, sjert, sizes["sjert_views"]), (WO_SJERT.label, jert, sizes["jert_view"])):
         f = row["finals"]
         final = f"{f.mean():.1f} ± {f.std(ddof=1) / np.sqrt(len(f)):.1f}" if len(f) > 1 else f"{f.mean():.1f}"
         p_value = "–" if row is sjert or len(f) < 2 else f"{welch_p(sjert['finals'], f):.3g}"
-        print(f"| {label} | {final} | {p_value} | {row['wall_s']:.0f} | {row['episodes_per_s']:.1f} "
-              f"| {row['updates_per_s']:.2f} | {sizes['slot']:,} | {view:,} |")
-    png = os.path.join(args.out, args.scenario, "sjert_vs_jert.png")
+        print(f"| {label} | {final} | {p_value} | {_reach_text(row['reach'])} | {row['wall_s']:.0f} "
+              f"| {row['episodes_per_s']:.1f} | {row['updates_per_s']:.2f} | {sizes['slot']:,} | {view:,} |")
+    png = os.path.join(out, args.scenario, "sjert_vs_jert.png")
     plot_curves([(label, r["episodes"], r["curves"]) for label, r in rows.items()], png,
-                f"{args.scenario}: ToMacVF, Mac-SJERT vs Mac-JERT ({count} seeds)", pdf=True)
-    with open(os.path.join(args.out, args.scenario, "sjert_vs_jert.json"), "w") as fh:
+                f"{args.scenario}: ToMacVF, Mac-SJERT vs Mac-JERT ({min(seeds.values())} seeds)", pdf=True)
+    with open(os.path.join(out, args.scenario, "sjert_vs_jert.json"), "w") as fh:
         json.dump({"bytes": sizes, **{label: {"finals": r["finals"].tolist(), "wall_s": r["wall_s"],
                                               "episodes_per_s": r["episodes_per_s"],
-                                              "updates_per_s": r["updates_per_s"]} for label, r in rows.items()}},
+                                              "updates_per_s": r["updates_per_s"],
+                                              "episodes_to_90": [None if np.isnan(e) else float(e) for e in r["reach"]],
+                                              "ended_early": r["ended_early"]} for label, r in rows.items()}},
                   fh, indent=1)
     print(f"wrote {png}")
 

@@ -394,6 +394,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--protocol", default=None, choices=list(PROTOCOLS),
                    help="the sweep's protocol (default: the folder's name if it is one, else the protocol the cells' "
                         "configurations match)")
+    p.add_argument("--rates", default=os.path.join("experiments", "protocol_rates.json"),
+                   help="measured training rates (`jaxmac calibrate`): what the cells not finished still cost")
     p.set_defaults(func=cmd_results)
 
     p = sub.add_parser("table", help="a Markdown table of finished run folders: final returns, settings, wall time")
@@ -422,7 +424,9 @@ def cmd_results(args) -> int:
     if not os.path.isdir(args.sweep_dir):
         raise ValueError(f"{args.sweep_dir}: no such sweep folder")
     out = args.out or os.path.join(args.sweep_dir, "results")
-    path = write_page(args.sweep_dir, out, args.experiments, args.protocol)
+    from jaxmac.study.sweep import load_rates
+
+    path = write_page(args.sweep_dir, out, args.experiments, args.protocol, load_rates(args.rates))
     print(f"wrote {path} (beside it a figure per experiment with a finished cell)")
     return 0
 

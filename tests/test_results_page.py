@@ -116,7 +116,7 @@ def test_a_one_seed_sweep_names_no_winner_and_says_why(tmp_path, monkeypatch):
     # no winner, no test, no interval, no bold "best" anywhere; one reason per scenario instead
     assert "who wins" not in page.lower() and "**140.0" not in page
     assert "(p " not in page and not re.search(r"\| (\d\.\d{3}|<0\.001) \|", page)
-    assert "| ToMacVF w/o ATPG | 1 | 96 | 100.0 | n = 1: no interval | 67 % | n = 1: no test | 0 min |" in page
+    assert "| ToMacVF w/o ATPG | 1 | 96 | 100.0 | n = 1: no interval | 67 % | never | n = 1: no test | 0 min |" in page
     reason = "No winner, interval or test here: every method has one seed, and a winner and a test need at least 2 "
     assert page.split("## ablation")[1].count(reason) == 2
     # the paper's questions: not answered; aggregates: not computed
@@ -144,10 +144,10 @@ def test_a_second_seed_brings_the_winner_and_the_tests_back(tmp_path):
     overcooked_b, warehouse_e = page.split("## ablation")[1].split("**warehouse-E**")
     # two seeds 10 apart each: 145 vs 105 gives Welch p ≈ 0.03 (as in test_results_page_from_run_folders)
     assert "Who wins: **ToMacVF**; every other method is below it (Welch's p < 0.05)." in overcooked_b
-    assert "| ToMacVF w/o ATPG | 2 | 96 | 105.0 ± 5.0 | [100.0, 110.0] | 70 % | 0.030 | 0 min |" in overcooked_b
+    assert "| ToMacVF w/o ATPG | 2 | 96 | 105.0 ± 5.0 | [100.0, 110.0] | 70 % | never | 0.030 | 0 min |" in overcooked_b
     assert "Who wins" not in warehouse_e.split("Aggregates")[0]
     assert "No winner, interval or test here: ToMacVF w/o ATPG has one seed" in warehouse_e
-    assert "| ToMacVF w/o Mac-SJERT | 2 | 96 | 95.0 ± 5.0 | [90.0, 100.0] | 9 % | 0.019 | 0 min |" in warehouse_e
+    assert "| ToMacVF w/o Mac-SJERT | 2 | 96 | 95.0 ± 5.0 | [90.0, 100.0] | 9 % | never | 0.019 | 0 min |" in warehouse_e
     questions = page.split("**2. Does ATPG help?**")[1].split("**3.")[0]
     assert "- overcooked-B: +40.0 (p 0.030)" in questions
     assert "- warehouse-E: not answered: fewer than 2 seeds (ToMacVF 2, ToMacVF w/o ATPG 1)" in questions
@@ -185,3 +185,35 @@ def test_jaxmac_results_writes_beside_the_sweep_by_default(tmp_path, capsys):
     assert (sweep / "results" / "ablation.png").exists()
     assert main(["results", str(tmp_path / "nowhere")]) == 2
     assert "no such sweep folder" in capsys.readouterr().err
+
+
+def test_cells_that_ended_early_or_are_still_running_say_how_far_they_got(tmp_path):
+    # the full protocol: a seed range may end before its budget (summary.json's ended_early), another still runs
+    sweep = tmp_path / "full"
+    done = sweep / "overcooked-B" / "tomacvf" / "seeds0-2"
+    _fake_run(done, 0, [140.0, 150.0])  # 12 evaluations, the last 10 at the final level: 90 % reached at 96
+    summary = json.loads((done / "summary.json").read_text())
+    (done / "summary.json").write_text(json.dumps(summary | {"ended_early": "settled at 96 episodes per seed"}))
+    (done / "config.json").write_text(json.dumps({"config": {"episodes": 200}}))
+    running = sweep / "overcooked-B" / "tomacvf" / "seeds2-4"
+    running.mkdir(parents=True)
+    (running / "config.json").write_text(json.dumps({"config": {"episodes": 200}}))
+    (running / "metrics.csv").write_text("seed,round,episodes,eval_disc_return,eval_return\n"
+                                         "2,0,8,1,1\n3,0,8,1,1\n2,1,48,1,1\n3,1,40,1,1\n")
+    _fake_run(sweep / "overcooked-B" / "mac_iaicc" / "seeds0-2", 0, [140.0, -100.0])  # one seed never reaches 90 %
+    idle = sweep / "overcooked-C" / "mac_cac" / "seeds0-2"
+    idle.mkdir(parents=True)
+    (idle / "config.json").write_text(json.dumps({"config": {"episodes": 100}}))
+    rates = {"tomacvf@overcooked-B": {"episodes_per_s": 0.08}}  # 2 seeds x 160 episodes left: 4,000 s
+    page = pathlib.Path(write_page(str(sweep), str(tmp_path / "out"), ["overcooked"], rates=rates)).read_text()
+    table = page.split("**overcooked-B** (ceiling")[1].split("**overcooked-C**")[0]
+    assert "| ToMacVF | 2 | 96 of 200 (ended early) | **145.0 ± 5.0** |" in table
+    assert "| 97 % | 96 | – |" in table  # the fraction of the ceiling (149.8), then the episodes to 90 % of it
+    assert "| 13 % | 96 (1 of 2 seeds) |" in table  # Mac-IAICC: mean 20 of 149.8
+    progress = "40 of 200 episodes per seed (seeds 2–3); ~1.1 core-hours left at the rate measured for tomacvf@overcooked-B"
+    assert f"More seeds not finished yet (the rows above are the finished seeds only): ToMacVF: {progress}." in table
+    assert "- overcooked-B/tomacvf/seeds0-2: settled at 96 episodes per seed" in page.split("## Headline")[0]
+    assert f"- overcooked-B/tomacvf: {progress}" in page.split("## Headline")[0]
+    # a cell that has not logged an episode yet, on a map no method finished, with no measured rate
+    assert "- overcooked-C/mac_cac: 0 of 100 episodes per seed (seeds 0–1)\n" in page
+    assert "**overcooked-C**: no method has finished yet; running or interrupted: Mac-CAC: 0 of 100" in page

@@ -152,3 +152,16 @@ def test_episodes_to_fraction_finds_the_first_smoothed_crossing_per_seed():
                     if p >= 9 and sum(row[p - 9:p + 1]) / 10 >= 6.0), np.nan)
         got = episodes_to_fraction(np.arange(100, 3100, 100), curves, 6.0)[s]
         assert (np.isnan(ref) and np.isnan(got)) or ref == got
+
+
+def test_a_seed_range_that_ended_early_merges_with_one_that_ran_its_budget(tmp_path):
+    # the budget is the configuration's episodes, not the summary's (which a run that ended early did not reach)
+    for name, first, done in (("seeds0-2", 0, 80), ("seeds2-4", 2, 96)):
+        path = tmp_path / "overcooked-A" / "tomacvf" / name
+        _fake_run(path, first, [1.0, 2.0], budget=done)
+        (path / "config.json").write_text(json.dumps({"config": {"episodes": 96}}))
+    summary = tmp_path / "overcooked-A" / "tomacvf" / "seeds0-2" / "summary.json"
+    summary.write_text(json.dumps(json.loads(summary.read_text()) | {"ended_early": "settled"}))
+    cell = load_sweep(str(tmp_path))[("overcooked-A", "tomacvf")]
+    assert (cell.budget, cell.trained, cell.seeds) == (96, 80, [0, 1, 2, 3])
+    assert cell.ended_early == (("seeds0-2", "settled"),)

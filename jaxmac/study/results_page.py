@@ -31,8 +31,9 @@ import numpy as np
 
 from jaxmac.plotting import mean_and_standard_error, save_figure, smooth
 from jaxmac.scenarios import CEILINGS, family
-from jaxmac.study.stats import aggregate, compare_methods, load_sweep, welch_p, who_wins
-from jaxmac.study.sweep import EXPERIMENTS, PROTOCOLS
+from jaxmac.study.stats import (aggregate, compare_methods, episodes_to_fraction, load_progress, load_sweep, welch_p,
+                                who_wins)
+from jaxmac.study.sweep import EXPERIMENTS, PROTOCOLS, Cell, estimate_seconds, method_by_name
 
 REFERENCE = "tomacvf"
 MIN_SEEDS = 2  # the fewest seeds per method for an interval, Welch's test and a winner
@@ -119,14 +120,64 @@ def _few_seeds_sentence(cells, labels: dict[str, str]) -> str:
             f"and a test need at least {MIN_SEEDS} seeds per method.")
 
 
-def scenario_table(results, experiment: str, scenario: str, protocol: str | None = None) -> list[str]:
+def reach_text(cell, fraction: float = 0.9) -> str:
+    """Sample efficiency of a cell: the mean over its seeds of the episodes at which the smoothed evaluation return
+    first reaches ``fraction`` of the ceiling (``stats.episodes_to_fraction``), "(k of n seeds)" when some seeds
+    never did; "never" when none did, "–" without a ceiling."""
+    ceiling = CEILINGS.get(cell.scenario)
+    if ceiling is None or not cell.curves.size:
+        return "–"
+    reach = episodes_to_fraction(cell.episodes, cell.curves, fraction * ceiling)
+    got = reach[~np.isnan(reach)]
+    if not len(got):
+        return "never"
+    return f"{got.mean():,.0f}" + ("" if len(got) == len(reach) else f" ({len(got)} of {len(reach)} seeds)")
+
+
+def _episodes_text(cell) -> str:
+    """"96", or "52,000 of 120,000 (ended early)" for a cell a seed range of which ended before its budget."""
+    if cell.ended_early and cell.trained < cell.budget:
+        return f"{cell.trained:,} of {cell.budget:,} (ended early)"
+    return f"{cell.budget:,}"
+
+
+def progress_text(ranges, scenario: str, method: str, rates: dict | None) -> str:
+    """What a cell's unfinished seed ranges have run ("14,208 of 120,000 episodes per seed (seeds 0–1), …") and, where
+    a training rate of the method was measured (``jaxmac calibrate``), the core-hours they still cost at it."""
+    parts, left = [], 0
+    for r in ranges:
+        first = int(r.folder[5:].split("-")[0])
+        parts.append(f"{r.episodes:,} of {r.budget:,} episodes per seed (seeds {first}–{first + r.seeds - 1})")
+        left += r.seeds * max(r.budget - r.episodes, 0)
+    text = "; ".join(parts)
+    try:
+        method_obj = method_by_name(method)
+    except ValueError:
+        return text
+    estimate = estimate_seconds(Cell("", method_obj, scenario, 0, 1, left), rates or {})
+    if estimate is not None:
+        seconds, measured = estimate
+        hours = seconds / 3600
+        text += f"; ~{hours:.1f}" if hours < 10 else f"; ~{hours:.0f}"
+        text += f" core-hours left at the rate measured for {measured}"
+    return text
+
+
+def scenario_table(results, experiment: str, scenario: str, protocol: str | None = None, progress=None,
+                   rates: dict | None = None) -> list[str]:
+    """The scenario's table: one row per finished cell (seeds, episodes per seed, final return, its interval, the
+    fraction of the ceiling, the episodes to 90 % of the ceiling, Welch's p against ToMacVF, wall time), then the
+    cells not finished: how far they ran and what they still cost (``progress``: ``stats.load_progress``), or why
+    the protocol leaves them out."""
     methods, _ = EXPERIMENTS[experiment]
+    progress = progress or {}
     cells = [results[(scenario, m.name)] for m in methods if (scenario, m.name) in results]
     labels = {m.name: m.label or m.name for m in methods}
     tested = _tested(cells)
     lines = [f"**{scenario}** (ceiling {CEILINGS.get(scenario, float('nan')):.1f})", "",
-             "| method | seeds | episodes/seed | final return | 95 % CI | of ceiling | p vs ToMacVF | wall time |",
-             "|---|---|---|---|---|---|---|---|"]
+             "| method | seeds | episodes/seed | final return | 95 % CI | of ceiling | episodes to 90 % | p vs ToMacVF | "
+             "wall time |",
+             "|---|---|---|---|---|---|---|---|---|"]
     reference_seeds = next((_seeds(c) for c in cells if c.method == REFERENCE), None)
     for r in compare_methods(cells, REFERENCE):
         value = f"{r['mean']:.1f} ± {r['se']:.1f}" if not np.isnan(r["se"]) else f"{r['mean']:.1f}"
@@ -141,13 +192,26 @@ def scenario_table(results, experiment: str, scenario: str, protocol: str | None
             p_text = f"n = {min(r['seeds'], reference_seeds)}: no test"
         else:
             p_text = _fmt_p(r["p_vs_reference"])
-        lines.append(f"| {labels[r['method']]} | {r['seeds']} | {r['budget']:,} | {value} | {interval} | "
-                     f"{100 * r['of_ceiling']:.0f} % | {p_text} | {r['wall_seconds'] / 60:.0f} min |")
+        cell = results[(scenario, r["method"])]
+        lines.append(f"| {labels[r['method']]} | {r['seeds']} | {_episodes_text(cell)} | {value} | {interval} | "
+                     f"{100 * r['of_ceiling']:.0f} % | {reach_text(cell)} | {p_text} | {r['wall_seconds'] / 60:.0f} min |")
+    running = []
     for m in methods:
+        ranges = progress.get((scenario, m.name))
         if (scenario, m.name) not in results:
             why = _not_run_reason(protocol, m.name, scenario)
-            status = f"not run: {why}" if why else "not finished yet"
-            lines.append(f"| {labels[m.name]} | {status} | | | | | | |")
+            if why:
+                status = f"not run: {why}"
+            elif ranges:
+                status = f"not finished yet: {progress_text(ranges, scenario, m.name, rates)}"
+            else:
+                status = "not finished yet"
+            lines.append(f"| {labels[m.name]} | {status} | | | | | | | |")
+        elif ranges:
+            running.append(f"{labels[m.name]}: {progress_text(ranges, scenario, m.name, rates)}")
+    if running:
+        lines += ["", "More seeds not finished yet (the rows above are the finished seeds only): "
+                  + "; ".join(running) + "."]
     if cells and not tested:
         lines += ["", _few_seeds_sentence(cells, labels)]
     elif len(cells) == 1:
@@ -389,9 +453,11 @@ def _budgets_text(cells) -> str:
                      for fam, bs in sorted(budgets.items()))
 
 
-def header_lines(sweep_dir: str, results, experiments: list[str], protocol: str | None, how: str) -> list[str]:
-    """What the page was made from: the protocol, the finished cells, their seeds and budgets, the experiments that
-    have not run, and — below 2 seeds — why the page decides nothing there."""
+def header_lines(sweep_dir: str, results, experiments: list[str], protocol: str | None, how: str, progress=None,
+                 rates: dict | None = None) -> list[str]:
+    """What the page was made from: the protocol, the finished cells, their seeds and budgets, the cells that ended
+    early, the cells still running (how far, what they still cost), the experiments that have not run, and — below
+    2 seeds — why the page decides nothing there."""
     from jaxmac.study.sweep import plan
 
     wanted = {(s, m.name) for e in experiments for m in EXPERIMENTS[e][0] for s in EXPERIMENTS[e][1]}
@@ -410,6 +476,14 @@ def header_lines(sweep_dir: str, results, experiments: list[str], protocol: str 
                   f"seed: {_budgets_text(cells)}.", ""]
     else:
         lines += [f"**Finished cells: none**{of_planned}.", ""]
+    ended = [f"{c.scenario}/{c.method}/{folder}: {why}" for c in cells for folder, why in c.ended_early]
+    if ended:
+        lines += ["**Ended early** (the protocol's rule; the episodes column of their tables says where):", ""]
+        lines += [f"- {e}" for e in ended] + [""]
+    running = sorted(key for key in (progress or {}) if key in wanted)
+    if running:
+        lines += ["**Not finished yet** (running or interrupted; `jaxmac sweep` resumes them):", ""]
+        lines += [f"- {s}/{m}: {progress_text(progress[(s, m)], s, m, rates)}" for s, m in running] + [""]
     not_run = [e for e in experiments if not _has_finished_cell(results, e)]
     if not_run:
         lines += [f"Not run (no finished cell): {', '.join(not_run)}.", ""]
@@ -424,10 +498,13 @@ def header_lines(sweep_dir: str, results, experiments: list[str], protocol: str 
     return lines
 
 
-def write_page(sweep_dir: str, out_dir: str, experiments: list[str], protocol: str | None = None) -> str:
+def write_page(sweep_dir: str, out_dir: str, experiments: list[str], protocol: str | None = None,
+               rates: dict | None = None) -> str:
     """Write ``out_dir/RESULTS.md`` and the figures; returns the page's path. ``protocol`` (default:
-    ``find_protocol``'s) gives the reasons of cells it leaves out and the header's description."""
+    ``find_protocol``'s) gives the reasons of cells it leaves out and the header's description; ``rates``
+    (``jaxmac calibrate``'s measured training rates) what the cells not finished still cost."""
     results = load_sweep(sweep_dir) if os.path.isdir(sweep_dir) else {}
+    progress = load_progress(sweep_dir) if os.path.isdir(sweep_dir) else {}
     if protocol is None:
         protocol, how = find_protocol(sweep_dir, results)
     elif protocol in PROTOCOLS:
@@ -438,7 +515,7 @@ def write_page(sweep_dir: str, out_dir: str, experiments: list[str], protocol: s
     lines = ["# Results of the sweep", "", f"Generated by `jaxmac results {sweep_dir}` from the finished run folders. "
              "Final return: evaluation return averaged over a run's last 10 evaluations, per seed; mean ± s.e. over "
              "seeds.", ""]
-    lines += header_lines(sweep_dir, results, experiments, protocol, how)
+    lines += header_lines(sweep_dir, results, experiments, protocol, how, progress, rates)
     lines += ["## Headline", ""]
     tables = [headline_table(results, [e for e in group if e in experiments], protocol) for group in HEADLINE_GROUPS
               if any(e in experiments for e in group)]
@@ -462,9 +539,15 @@ def write_page(sweep_dir: str, out_dir: str, experiments: list[str], protocol: s
             lines += [f"![{experiment}]({experiment}.png)", ""]
         methods, scenarios = EXPERIMENTS[experiment]
         idle = [s for s in scenarios if not any((s, m.name) in results for m in methods)]
+        running = [s for s in idle if any((s, m.name) in progress for m in methods)]
+        idle = [s for s in idle if s not in running]
+        for scenario in running:
+            lines += [f"**{scenario}**: no method has finished yet; running or interrupted: " + "; ".join(
+                f"{m.label or m.name}: {progress_text(progress[(scenario, m.name)], scenario, m.name, rates)}"
+                for m in methods if (scenario, m.name) in progress) + ".", ""]
         for scenario in scenarios:
             if scenario not in idle:
-                lines += scenario_table(results, experiment, scenario, protocol)
+                lines += scenario_table(results, experiment, scenario, protocol, progress, rates)
         if idle:
             lines += [f"No method has finished on {', '.join(idle)} yet.", ""]
         lines += aggregate_lines(results, experiment, protocol)

@@ -47,8 +47,10 @@ class CellResult:
     finals: np.ndarray  # f64[seeds] final return per seed
     episodes: np.ndarray  # i64[P] evaluation points (episodes per seed)
     curves: np.ndarray  # f64[seeds, P] evaluation return per seed
-    budget: int  # training episodes per seed
+    budget: int  # training episodes per seed the cell was planned for (its configuration's ``episodes``)
     wall_seconds: float  # summed over the seed ranges' runs
+    trained: int = 0  # training episodes per seed it ran: the budget, or fewer where a seed range ended early
+    ended_early: tuple[tuple[str, str], ...] = ()  # (seed range folder, why: summary.json's ``ended_early``)
 
 
 def final_returns(curves: np.ndarray, last: int = FINAL_POINTS) -> np.ndarray:
@@ -72,6 +74,19 @@ def episodes_to_fraction(episodes: np.ndarray, curves: np.ndarray, target: float
                 out[s] = episodes[p]
                 break
     return out
+
+
+def planned_episodes(run_dir: str, summary: dict) -> int:
+    """The training episodes per seed a run was configured for (``config.json``), which a run that ended early did
+    not reach; the summary's ``episodes`` when the folder has no configuration."""
+    path = os.path.join(run_dir, "config.json")
+    if os.path.exists(path):
+        with open(path) as f:
+            held = json.load(f)
+        episodes = held.get("config", {}).get("episodes")
+        if isinstance(episodes, int):
+            return episodes
+    return int(summary["episodes"])
 
 
 def load_run_result(run_dir: str) -> tuple[list[int], np.ndarray, np.ndarray, dict]:
@@ -98,22 +113,63 @@ def load_sweep(sweep_dir: str) -> dict[tuple[str, str], CellResult]:
                 continue
             ranges = sorted((d for d in os.listdir(method_dir) if re.fullmatch(r"seeds\d+-\d+", d)),
                             key=lambda d: int(d[5:].split("-")[0]))
-            parts = [load_run_result(os.path.join(method_dir, d)) for d in ranges
-                     if os.path.exists(os.path.join(method_dir, d, "summary.json"))]
+            finished = [d for d in ranges if os.path.exists(os.path.join(method_dir, d, "summary.json"))]
+            parts = [load_run_result(os.path.join(method_dir, d)) for d in finished]
             if not parts:
                 continue
             seeds = [s for p in parts for s in p[0]]
             if len(set(seeds)) != len(seeds):
                 raise ValueError(f"{method_dir}: seed ranges overlap ({ranges})")
-            budgets = {p[3]["episodes"] for p in parts}
+            budgets = {planned_episodes(os.path.join(method_dir, d), p[3]) for d, p in zip(finished, parts)}
             if len(budgets) != 1:
                 raise ValueError(f"{method_dir}: seed ranges were trained for different budgets {sorted(budgets)}")
             points = min(p[1].shape[0] for p in parts)
             curves = np.concatenate([p[2][:, :points] for p in parts])
             results[(scenario, method)] = CellResult(
                 scenario, method, seeds, np.concatenate([final_returns(p[2]) for p in parts]), parts[0][1][:points],
-                curves, budgets.pop(), float(sum(p[3].get("wall_seconds", 0.0) for p in parts)))
+                curves, budgets.pop(), float(sum(p[3].get("wall_seconds", 0.0) for p in parts)),
+                trained=min(int(p[3]["episodes"]) for p in parts),
+                ended_early=tuple((d, p[3]["ended_early"]) for d, p in zip(finished, parts) if p[3].get("ended_early")))
     return results
+
+
+@dataclasses.dataclass
+class RangeProgress:
+    """A seed range of a sweep cell that has not finished: how far its run folder got."""
+
+    folder: str  # "seeds<A>-<B>"
+    seeds: int
+    episodes: int  # training episodes per seed in its metrics.csv so far (the least over its seeds; 0 = none yet)
+    budget: int  # training episodes per seed it is configured for
+
+
+def load_progress(sweep_dir: str) -> dict[tuple[str, str], list[RangeProgress]]:
+    """Every seed range of a sweep folder that has a run folder (its ``config.json``) but no ``summary.json`` yet,
+    per (scenario, method): what a results page reports of cells still running or interrupted."""
+    import csv
+
+    progress: dict[tuple[str, str], list[RangeProgress]] = {}
+    for scenario in sorted(os.listdir(sweep_dir)):
+        for method in sorted(os.listdir(os.path.join(sweep_dir, scenario))) if os.path.isdir(
+                os.path.join(sweep_dir, scenario)) else ():
+            method_dir = os.path.join(sweep_dir, scenario, method)
+            if not os.path.isdir(method_dir):
+                continue
+            for d in sorted(os.listdir(method_dir), key=lambda d: (len(d), d)):
+                run = os.path.join(method_dir, d)
+                if (not re.fullmatch(r"seeds\d+-\d+", d) or os.path.exists(os.path.join(run, "summary.json"))
+                        or not os.path.exists(os.path.join(run, "config.json"))):
+                    continue
+                last: dict[str, int] = {}
+                if os.path.exists(os.path.join(run, "metrics.csv")):
+                    with open(os.path.join(run, "metrics.csv"), newline="") as f:
+                        for row in csv.DictReader(f):
+                            last[row["seed"]] = int(row["episodes"])
+                first, end = (int(x) for x in d[5:].split("-"))
+                episodes = min(last.values()) if len(last) == end - first else 0
+                progress.setdefault((scenario, method), []).append(
+                    RangeProgress(d, end - first, episodes, planned_episodes(run, {"episodes": 0})))
+    return progress
 
 
 def welch_p(a: np.ndarray, b: np.ndarray) -> float:
