@@ -3,7 +3,7 @@
     python benchmarks/train_throughput.py [--algorithm tomacvf] --scenario boxpushing-6x6 [--seeds 1 4 8]
                                           [--workers 1 2] [--devices 2] [--chunks 3] [--set KEY=VALUE ...]
 
-For every (seeds, workers) pair, and every (seeds, devices) pair of one process whose seeds are sharded over that many
+For every (seeds, workers) pair (several workers each held to a core of its own), and every (seeds, devices) pair of one process whose seeds are sharded over that many
 host devices (``jax.sharding``, the way that carries to GPUs and hosts), each worker process compiles ``Trainer.seeds_chunk`` over its
 share of the seeds (compile time reported apart) and then times ``--chunks`` chunks of the
 scenario's configuration of that algorithm (warm-up chunks first fill the ring up to where
@@ -90,12 +90,19 @@ def measure(algorithm: str, scenario: str, seeds: int, seed_offset: int, chunks:
 def run_workers(algorithm: str, scenario: str, seeds: int, workers: int, chunks: int,
                 assignments: list[str], run_dir: str | None = None, devices: int = 1) -> list[dict]:
     """``workers`` concurrent processes, each measuring its share of the seeds (sharded over ``devices`` host
-    devices of its own)."""
+    devices of its own); several workers are each held to one core (``taskset``, round robin over the cores this
+    process may use)."""
     from jaxmac.runs.workers import split_seeds
 
-    procs = [subprocess.Popen([sys.executable, __file__, "--child", algorithm, scenario, str(s), str(o), str(chunks),
-                              json.dumps(assignments), run_dir or "", str(devices)],
-                              stdout=subprocess.PIPE, text=True) for o, s in split_seeds(seeds, workers)]
+    import os
+
+    cores = sorted(os.sched_getaffinity(0))
+    # each of several workers held to a core of its own (as `jaxmac sweep` runs on a 2-core machine: one process
+    # per core), so that their XLA thread pools do not share the cores
+    pin = (lambda k: ["taskset", "-c", str(cores[k % len(cores)])]) if workers > 1 else (lambda k: [])
+    procs = [subprocess.Popen(pin(k) + [sys.executable, __file__, "--child", algorithm, scenario, str(s), str(o),
+                                        str(chunks), json.dumps(assignments), run_dir or "", str(devices)],
+                              stdout=subprocess.PIPE, text=True) for k, (o, s) in enumerate(split_seeds(seeds, workers))]
     out = []
     for p in procs:
         stdout, _ = p.communicate()

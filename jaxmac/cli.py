@@ -207,19 +207,27 @@ def seed_range(text: str) -> tuple[int, int]:
 
 def cmd_sweep(args) -> int:
     from jaxmac.runs import enable_compilation_cache, use_host_devices
+    from jaxmac.runs.resources import default_devices, fit_devices
     from jaxmac.study.sweep import PROTOCOLS, cell_status, estimate_seconds, load_rates, not_run_cells, plan, run_sweep
 
-    devices = 1 if args.devices is None else args.devices
-    use_host_devices(devices)  # before JAX starts
     methods = None
     if args.config is not None:  # a method file: methods added to (or replacing) the experiment's
         from jaxmac.config_files import sweep_methods
 
         methods = sweep_methods(args.config, args.experiment)
     cells = plan(args.experiment, args.protocol, args.seeds, args.only, methods)
+    # by default one process shards each cell's seeds over every core it may use (faster than a process per core)
+    if args.devices is not None:
+        devices = args.devices
+    else:
+        local = args.cluster != "ray" and not args.dry_run
+        devices = default_devices([c.seeds for c in cells]) if local else 1
+    use_host_devices(devices)  # before JAX starts
+    if args.devices is None and devices > 1:
+        devices = fit_devices(devices, [c.seeds for c in cells])
     out = args.out or os.path.join("experiments", "sweeps", args.protocol)
     print(f"sweep {args.experiment}, protocol {args.protocol} ({PROTOCOLS[args.protocol].about}): {len(cells)} cells "
-          f"into {out}")
+          f"into {out}" + (f", each cell's seeds sharded over {devices} devices" if devices > 1 else ""))
     if args.dry_run:
         rates = load_rates(args.rates)
         total, unknown = 0.0, 0
@@ -345,7 +353,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="a TOML (YAML, JSON) file of [[method]] tables (name, algorithm, label, settings, "
                         "scenario_settings) added to the experiment's methods, replacing one of the same name "
                         "(replace = true: instead of them); experiments/configs/sweep-methods.toml")
-    p.add_argument("--devices", type=int, default=None, help="devices to shard each cell's seeds over (as train)")
+    p.add_argument("--devices", type=int, default=None,
+                   help="devices to shard each cell's seeds over (as train; default: one per core this process may "
+                        "use when every cell's seeds split evenly over them, else 1 — `taskset -c 0` makes it 1)")
     p.add_argument("--dry-run", action="store_true",
                    help="list the cells, their status and estimated cost, run nothing")
     p.add_argument("--rates", default=os.path.join("experiments", "protocol_rates.json"),

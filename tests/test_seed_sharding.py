@@ -57,3 +57,16 @@ def test_seed_sharding_refuses_what_it_cannot_do():
         seed_sharding(4, 0)
     with pytest.raises(ValueError, match=r"devices=64: JAX sees \d+ device"):
         seed_sharding(64, 64)
+
+
+def test_a_sweep_shards_seeds_over_the_cores_it_may_use_by_default(monkeypatch):
+    from jaxmac.runs import resources
+
+    monkeypatch.setattr(resources, "usable_cores", lambda: 2)
+    assert resources.default_devices([4, 4]) == 2 and resources.default_devices([2]) == 2
+    assert resources.default_devices([4, 1]) == 1  # a cell of one seed cannot be split: one device for all
+    assert resources.default_devices([]) == 1
+    monkeypatch.setattr(resources, "usable_cores", lambda: 1)  # e.g. under `taskset -c 0`
+    assert resources.default_devices([4]) == 1
+    # once JAX runs, a default is cut to the devices it sees (this test process: one CPU device)
+    assert resources.fit_devices(2, [4]) == 1

@@ -30,6 +30,28 @@ def use_host_devices(count: int) -> None:
         os.environ["XLA_FLAGS"] = f"{flags} --xla_force_host_platform_device_count={count}".strip()
 
 
+def usable_cores() -> int:
+    """The CPU cores this process may run on (its affinity: 1 under ``taskset -c 0``)."""
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+
+
+def default_devices(seed_counts: list[int]) -> int:
+    """The devices to shard seeds over when none are asked for: one per usable core, when every count of seeds in
+    ``seed_counts`` splits evenly over them, else 1. On this project's 2-core machine one process with 4 seeds
+    sharded over both cores trained ToMacVF on Overcooked-A at 1.21x the episodes per second of two processes of 2
+    seeds each, one per core (``benchmarks/train_throughput.py``; docs/training.md). Call it before JAX starts; once
+    it has, ``fit_devices`` keeps the count within the devices JAX sees."""
+    cores = usable_cores()
+    return cores if cores > 1 and seed_counts and all(n % cores == 0 for n in seed_counts) else 1
+
+
+def fit_devices(devices: int, seed_counts: list[int]) -> int:
+    """``devices`` (a default, not a request) cut to what JAX sees — an accelerator host has no per-core devices —
+    and to 1 when the seeds do not split evenly over what is left."""
+    devices = min(devices, len(jax.devices()))
+    return devices if all(n % devices == 0 for n in seed_counts) else 1
+
+
 def seed_sharding(seeds: int, devices: int):
     """The ``NamedSharding`` that splits a state's leading seed axis over the first ``devices`` devices (a mesh
     axis named ``SEED_AXIS``), or None for one device. One jitted program then runs every device's seeds (the same
