@@ -79,13 +79,6 @@ def finished_ranges(out: str, scenario: str, method: str) -> list[str]:
     return [os.path.join(method_dir, d) for d in names if os.path.exists(os.path.join(method_dir, d, "summary.json"))]
 
 
-def _reach_text(reach: np.ndarray) -> str:
-    got = reach[~np.isnan(reach)]
-    if not len(got):
-        return "never"
-    return f"{got.mean():,.0f}" + ("" if len(got) == len(reach) else f" ({len(got)} of {len(reach)} seeds)")
-
-
 def main(argv=None) -> None:
     from jaxmac.cli import seed_range
     from jaxmac.scenarios import SCENARIOS
@@ -114,7 +107,7 @@ def main(argv=None) -> None:
     use_host_devices(args.devices)  # before JAX starts
     from jaxmac.plotting import plot_curves
     from jaxmac.presets import scenario_config
-    from jaxmac.study.stats import return_column, welch_p
+    from jaxmac.study.stats import reach_summary, return_column, welch_p
     from jaxmac.study.sweep import PROTOCOLS, TOMACVF, WO_SJERT, Cell, run_sweep
 
     first, count = args.seeds
@@ -167,7 +160,7 @@ def main(argv=None) -> None:
         f = row["finals"]
         final = f"{f.mean():.1f} ± {f.std(ddof=1) / np.sqrt(len(f)):.1f}" if len(f) > 1 else f"{f.mean():.1f}"
         p_value = "–" if row is sjert or len(f) < 2 else f"{welch_p(sjert['finals'], f):.3g}"
-        print(f"| {label} | {final} | {p_value} | {_reach_text(row['reach'])} | {row['wall_s']:.0f} "
+        print(f"| {label} | {final} | {p_value} | {reach_summary(row['reach'])} | {row['wall_s']:.0f} "
               f"| {row['episodes_per_s']:.1f} | {row['updates_per_s']:.2f} | {sizes['slot']:,} | {view:,} |")
     png = os.path.join(out, args.scenario, "sjert_vs_jert.png")
     plot_curves([(label, r["episodes"], r["curves"]) for label, r in rows.items()], png,

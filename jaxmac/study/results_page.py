@@ -31,8 +31,8 @@ import numpy as np
 
 from jaxmac.plotting import mean_and_standard_error, save_figure, smooth
 from jaxmac.scenarios import CEILINGS, family
-from jaxmac.study.stats import (aggregate, compare_methods, episodes_to_fraction, load_progress, load_sweep, welch_p,
-                                who_wins)
+from jaxmac.study.stats import (aggregate, compare_methods, episodes_to_fraction, load_progress, load_sweep,
+                                reach_summary, welch_p, who_wins)
 from jaxmac.study.sweep import EXPERIMENTS, PROTOCOLS, Cell, estimate_seconds, method_by_name
 
 REFERENCE = "tomacvf"
@@ -127,11 +127,7 @@ def reach_text(cell, fraction: float = 0.9) -> str:
     ceiling = CEILINGS.get(cell.scenario)
     if ceiling is None or not cell.curves.size:
         return "–"
-    reach = episodes_to_fraction(cell.episodes, cell.curves, fraction * ceiling)
-    got = reach[~np.isnan(reach)]
-    if not len(got):
-        return "never"
-    return f"{got.mean():,.0f}" + ("" if len(got) == len(reach) else f" ({len(got)} of {len(reach)} seeds)")
+    return reach_summary(episodes_to_fraction(cell.episodes, cell.curves, fraction * ceiling))
 
 
 def _episodes_text(cell) -> str:

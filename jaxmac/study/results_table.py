@@ -21,7 +21,7 @@ from jaxmac.config import TrainConfig
 from jaxmac.plotting import mean_and_standard_error
 from jaxmac.presets import scenario_config
 from jaxmac.scenarios import CEILINGS
-from jaxmac.study.stats import episodes_to_fraction, final_returns, load_run_result
+from jaxmac.study.stats import episodes_to_fraction, final_returns, load_run_result, reach_summary
 
 
 def _changed_settings(run_dir: pathlib.Path, scenario: str) -> str:
@@ -43,14 +43,9 @@ def _efficiency(run_dir: pathlib.Path, scenario: str) -> str:
     _, episodes, curves, _ = load_run_result(str(run_dir))
     finals = final_returns(curves)
     reach = episodes_to_fraction(episodes, curves, 0.9 * ceiling)
-    got = reach[~np.isnan(reach)]
     per_seed = " ".join("–" if np.isnan(e) else f"{int(e):,}" for e in reach)
-    if len(got):
-        mean_reach = f"{got.mean():,.0f}" + ("" if len(got) == len(reach) else f" ({len(got)} of {len(reach)} seeds)")
-    else:
-        mean_reach = "never"
     return (f"{' '.join(f'{v:.1f}' for v in finals)}; {finals.mean():.1f}, {finals.mean() / ceiling:.0%} | "
-            f"{per_seed}; {mean_reach}")
+            f"{per_seed}; {reach_summary(reach)}")
 
 
 def table_rows(run_dirs: list[pathlib.Path]) -> list[str]:

@@ -89,6 +89,15 @@ def planned_episodes(run_dir: str, summary: dict) -> int:
     return int(summary["episodes"])
 
 
+def reach_summary(reach: np.ndarray) -> str:
+    """``episodes_to_fraction``'s per-seed episodes in a table cell: their mean over the seeds that got there,
+    "(k of n seeds)" when some never did, "never" when none did."""
+    got = reach[~np.isnan(reach)]
+    if not len(got):
+        return "never"
+    return f"{got.mean():,.0f}" + ("" if len(got) == len(reach) else f" ({len(got)} of {len(reach)} seeds)")
+
+
 def load_run_result(run_dir: str) -> tuple[list[int], np.ndarray, np.ndarray, dict]:
     """(seed ids, episodes [P], curves [seeds, P], summary) of a finished run folder."""
     with open(os.path.join(run_dir, "summary.json")) as f:
