@@ -273,7 +273,7 @@ def _sweep_on_ray(args, cells, out) -> int:
     except KeyboardInterrupt:
         return 130
     failed = {path: what for path, what in done.items() if what.startswith("failed")}
-    finished = sum(what in ("trained", "resumed", "skipped") for what in done.values())
+    finished = sum(what in ("trained", "resumed", "extended", "skipped") for what in done.values())
     print(f"{finished} of {len(cells)} cells finished" + (f"; {len(failed)} failed: {', '.join(failed)}" if failed
                                                             else ""))
     return 1 if failed else 0

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 
@@ -83,7 +84,7 @@ def _fake_runs(monkeypatch, calls):
 
     def resume_run(out, **kw):
         open(os.path.join(out, "summary.json"), "w").write("{}")
-        calls.append(("resume", out))
+        calls.append(("resume", out) if kw.get("episodes") is None else ("resume", out, kw["episodes"]))
 
     monkeypatch.setattr(jaxmac.runs, "train_run", train_run)  # where jaxmac.study.sweep looks them up
     monkeypatch.setattr(jaxmac.runs, "resume_run", resume_run)
@@ -108,10 +109,28 @@ def test_a_folder_of_another_run_is_refused_naming_what_differs(tmp_path, monkey
     _fake_runs(monkeypatch, [])
     cells = plan("ablation", "smoke", only="overcooked-B/tomacvf/")
     run_sweep(cells, str(tmp_path), log=lambda *_: None)
-    longer = plan("ablation", "smoke", only="overcooked-B/tomacvf/")[0]
-    longer = type(longer)(**{**longer.__dict__, "episodes": 64})
-    with pytest.raises(ValueError, match="holds another run than the sweep's cell .*episodes: 32 there, 64 here"):
-        cell_status(str(tmp_path), longer)
+    shorter = type(cells[0])(**{**cells[0].__dict__, "episodes": 16})  # the folder's run is longer than this cell
+    with pytest.raises(ValueError, match="holds another run than the sweep's cell .*episodes: 32 there, 16 here"):
+        cell_status(str(tmp_path), shorter)
+    other = type(cells[0])(**{**cells[0].__dict__, "method": dataclasses.replace(
+        cells[0].method, overrides=cells[0].method.overrides + (("lr", 1e-3),))})
+    with pytest.raises(ValueError, match="holds another run than the sweep's cell .*lr: "):
+        cell_status(str(tmp_path), other)
+
+
+def test_a_cell_whose_run_trained_a_smaller_budget_is_extended(tmp_path, monkeypatch):
+    # e.g. a run trained to 80K episodes where the protocol's cell asks for 100K: resumed with the larger budget
+    calls = []
+    _fake_runs(monkeypatch, calls)
+    cells = plan("ablation", "smoke", only="overcooked-B/tomacvf/")
+    run_sweep(cells, str(tmp_path), log=lambda *_: None)
+    longer = type(cells[0])(**{**cells[0].__dict__, "episodes": 64})
+    assert cell_status(str(tmp_path), longer) == "shorter"
+    calls.clear()
+    assert run_sweep([longer], str(tmp_path), log=lambda *_: None) == {longer.path: "extended"}
+    assert calls == [("resume", str(tmp_path / longer.path), 64)]
+    attempts = (tmp_path / longer.path / "attempts.jsonl").read_text().splitlines()
+    assert json.loads(attempts[-1])["action"] == "extend"
 
 
 def test_a_real_cell_runs_then_is_skipped(tmp_path):

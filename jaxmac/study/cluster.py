@@ -258,8 +258,8 @@ def run_sweep_ray(cells: list[Cell], out_dir: str, devices: int | None = None, p
                   gpus_per_cell: float = 0.0, retries: int = 3, shared: bool | None = None,
                   scratch: str | None = None, rates: dict | None = None,
                   init: dict | None = None) -> dict[str, str]:
-    """Run every cell not done yet as a Ray task; returns {cell path: 'trained' | 'resumed' | 'skipped' | 'busy' |
-    'failed: MESSAGE'}. Uses the Ray instance this process is connected to, else ``ray.init(address, **init)``
+    """Run every cell not done yet as a Ray task; returns {cell path: 'trained' | 'resumed' | 'extended' | 'skipped' |
+    'busy' | 'failed: MESSAGE'}. Uses the Ray instance this process is connected to, else ``ray.init(address, **init)``
     (None: ``RAY_ADDRESS`` or a cluster started on this machine, else a new local instance), and disconnects at the
     end (a local instance it started ends). ``shared``: whether the
     tasks see ``out_dir`` (None: each task looks); ``scratch``: the nodes' folder for cells outside it;
@@ -297,7 +297,7 @@ def run_sweep_ray(cells: list[Cell], out_dir: str, devices: int | None = None, p
         elif statuses[cell.path] == "done":
             say(f"{cell.path}: done")
             results[cell.path] = "skipped"
-    todo = [c for c in cells if statuses.get(c.path) in ("new", "interrupted")]
+    todo = [c for c in cells if statuses.get(c.path) in ("new", "interrupted", "shorter")]
     if not todo:
         return results
 
@@ -326,7 +326,8 @@ def run_sweep_ray(cells: list[Cell], out_dir: str, devices: int | None = None, p
         host = socket.gethostname()
         for cell in todo:
             ref = task.remote(cell, out_dir, os.path.basename(marker)[len(MARKER_PREFIX):], host,
-                              statuses[cell.path] == "interrupted", devices, checkpoint_seconds, shared, scratch,
+                              statuses[cell.path] in ("interrupted", "shorter"), devices, checkpoint_seconds, shared,
+                              scratch,
                               board)
             refs[ref] = cell
         bar = tqdm(total=len(todo), unit="cell", desc="cells", disable=not progress, dynamic_ncols=True,
@@ -356,7 +357,7 @@ def run_sweep_ray(cells: list[Cell], out_dir: str, devices: int | None = None, p
                         bar.update(1)
                         continue
                     results[cell.path] = result["done"]
-                    if result["done"] in ("trained", "resumed"):
+                    if result["done"] in ("trained", "resumed", "extended"):
                         durations[cell.path] = result["seconds"]
                     where = f"{result['host']} (node {result['node_id'][:8]}, pid {result['pid']})"
                     what = {"busy": "being trained by another sweep process (left to it)"}.get(

@@ -138,8 +138,8 @@ def _episodes_text(cell) -> str:
 
 
 def progress_text(ranges, scenario: str, method: str, rates: dict | None) -> str:
-    """What a cell's unfinished seed ranges have run ("14,208 of 120,000 episodes per seed (seeds 0–1), …") and, where
-    a training rate of the method was measured (``jaxmac calibrate``), the core-hours they still cost at it."""
+    """What a cell's unfinished seed ranges have run ("14,208 of 120,000 episodes per seed (seeds 0–1), …") and,
+    where a training rate of the method was measured (``jaxmac calibrate``), the core-hours they still cost at it."""
     parts, left = [], 0
     for r in ranges:
         first = int(r.folder[5:].split("-")[0])
@@ -171,8 +171,8 @@ def scenario_table(results, experiment: str, scenario: str, protocol: str | None
     labels = {m.name: m.label or m.name for m in methods}
     tested = _tested(cells)
     lines = [f"**{scenario}** (ceiling {CEILINGS.get(scenario, float('nan')):.1f})", "",
-             "| method | seeds | episodes/seed | final return | 95 % CI | of ceiling | episodes to 90 % | p vs ToMacVF | "
-             "wall time |",
+             "| method | seeds | episodes/seed | final return | 95 % CI | of ceiling | episodes to 90 % "
+             "| p vs ToMacVF | wall time |",
              "|---|---|---|---|---|---|---|---|---|"]
     reference_seeds = next((_seeds(c) for c in cells if c.method == REFERENCE), None)
     for r in compare_methods(cells, REFERENCE):
@@ -190,7 +190,8 @@ def scenario_table(results, experiment: str, scenario: str, protocol: str | None
             p_text = _fmt_p(r["p_vs_reference"])
         cell = results[(scenario, r["method"])]
         lines.append(f"| {labels[r['method']]} | {r['seeds']} | {_episodes_text(cell)} | {value} | {interval} | "
-                     f"{100 * r['of_ceiling']:.0f} % | {reach_text(cell)} | {p_text} | {r['wall_seconds'] / 60:.0f} min |")
+                     f"{100 * r['of_ceiling']:.0f} % | {reach_text(cell)} | {p_text} "
+                     f"| {r['wall_seconds'] / 60:.0f} min |")
     running = []
     for m in methods:
         ranges = progress.get((scenario, m.name))

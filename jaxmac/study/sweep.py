@@ -266,9 +266,10 @@ def plan(experiment: str, protocol: str = "cpu", seeds: tuple[int, int] | None =
 
 
 def cell_status(out_dir: str, cell: Cell) -> str:
-    """'done' (a summary), 'interrupted' (a run folder without one) or 'new'. A folder that holds a run of another
-    configuration (other settings, budget or seeds) is refused, naming what differs: cells are shared between
-    experiments by path, so a path must always mean the same run."""
+    """'done' (a summary), 'interrupted' (a run folder without one), 'shorter' (the cell's run trained to a smaller
+    budget, finished or not: the sweep extends it, as ``jaxmac train --resume RUN --episodes N`` would) or 'new'. A
+    folder that holds a run of another configuration (other settings, a larger budget or other seeds) is refused,
+    naming what differs: cells are shared between experiments by path, so a path must always mean the same run."""
     from jaxmac.runs import read_meta
 
     path = os.path.join(out_dir, cell.path)
@@ -282,6 +283,9 @@ def cell_status(out_dir: str, cell: Cell) -> str:
     if (meta["seeds"], meta["seed_offset"]) != (cell.seeds, cell.first_seed):
         differ.append(f"seeds: {meta['seed_offset']}..{meta['seed_offset'] + meta['seeds'] - 1} there, "
                       f"{cell.first_seed}..{cell.first_seed + cell.seeds - 1} here")
+    if differ == [f"episodes: {held.get('episodes')!r} there, {wanted['episodes']!r} here"] and \
+            held["episodes"] < wanted["episodes"]:
+        return "shorter"
     if differ:
         raise ValueError(f"{path} holds another run than the sweep's cell ({'; '.join(differ)}); move it away or use "
                          "another --out")
@@ -323,17 +327,18 @@ def run_sweep(cells: list[Cell], out_dir: str, devices: int = 1, progress: bool 
     for k, cell in enumerate(cells):
         done[cell.path] = run_cell(cell, out_dir, devices, progress, log, checkpoint_seconds,
                                    prefix=f"[{k + 1}/{len(cells)}] ")
-        if done[cell.path] in ("trained", "resumed"):
+        if done[cell.path] in ("trained", "resumed", "extended"):
             jax.clear_caches()  # the next cell compiles its own program
     return done
 
 
 def run_cell(cell: Cell, out_dir: str, devices: int = 1, progress: bool = True, log=print,
              checkpoint_seconds: float = 120.0, prefix: str = "", where: dict | None = None) -> str:
-    """Train ``cell`` into ``out_dir`` (resume it if interrupted): 'trained', 'resumed', 'skipped' (done already) or
-    'busy' (another live process holds it). Each attempt is recorded in the cell's ``attempts.jsonl`` (``where``:
-    the executor's own fields, e.g. a Ray node id; default: this process, ``executor: embedded``). The one code path
-    of a cell, in a sweep process (``run_sweep``) or a Ray task (``jaxmac.study.cluster``)."""
+    """Train ``cell`` into ``out_dir`` (resume it if interrupted, extend it to the cell's budget if it ran a smaller
+    one): 'trained', 'resumed', 'extended', 'skipped' (done already) or 'busy' (another live process holds it). Each
+    attempt is recorded in the cell's ``attempts.jsonl`` (``where``: the executor's own fields, e.g. a Ray node id;
+    default: this process, ``executor: embedded``). The one code path of a cell, in a sweep process (``run_sweep``)
+    or a Ray task (``jaxmac.study.cluster``)."""
     from jaxmac.runs import resume_run, train_run
 
     status = cell_status(out_dir, cell)
@@ -351,12 +356,13 @@ def run_cell(cell: Cell, out_dir: str, devices: int = 1, progress: bool = True, 
             log(f"{prefix}{cell.path}: done")
             return "skipped"
         log(f"{prefix}{cell.path}: {status}")
-        record_attempt(path, "resume" if status == "interrupted" else "train", devices, where)
+        action = {"interrupted": "resume", "shorter": "extend"}.get(status, "train")
+        record_attempt(path, action, devices, where)
         end_early = None if cell.end_early is None else cell.end_early.reason
-        if status == "interrupted":
+        if status in ("interrupted", "shorter"):
             resume_run(path, progress=progress, devices=devices, checkpoint_seconds=checkpoint_seconds,
-                       end_early=end_early)
-            return "resumed"
+                       end_early=end_early, episodes=cell.episodes if status == "shorter" else None)
+            return "resumed" if status == "interrupted" else "extended"
         train_run(cell.config(), cell.seeds, path, seed_offset=cell.first_seed, progress=progress,
                   devices=devices, checkpoint_seconds=checkpoint_seconds, end_early=end_early)
         return "trained"
