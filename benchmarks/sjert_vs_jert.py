@@ -48,35 +48,28 @@ def view_bytes(config) -> dict[str, int]:
             "jert_view": size(jax.eval_shape(views.jert_view, slot))}
 
 
-def run_row(run_dirs: list[str], scenario: str) -> dict:
-    """The table's numbers for the finished seed ranges ``run_dirs`` of one method (merged: rates are their seeds'
-    episodes and gradient steps over their summed wall time)."""
+def run_row(out: str, scenario: str, method: str) -> dict | None:
+    """The table's numbers for one method's finished seed ranges in ``OUT/<scenario>/<method>/`` (merged as a
+    results page merges them, ``stats.load_cell``; rates are their seeds' episodes and gradient steps over their
+    summed wall time); None when none has finished."""
     import pandas as pd
 
     from jaxmac.scenarios import CEILINGS
-    from jaxmac.study.stats import episodes_to_fraction, final_returns, load_run_result
+    from jaxmac.study.stats import episodes_to_fraction, load_cell, load_run_result, seed_range_folders
 
-    parts = [load_run_result(d) for d in run_dirs]
-    points = min(p[1].shape[0] for p in parts)
-    episodes, curves = parts[0][1][:points], np.concatenate([p[2][:, :points] for p in parts])
-    updates = sum(pd.read_csv(os.path.join(d, "metrics.csv")).groupby("seed")["updates"].max().sum() for d in run_dirs)
-    wall = sum(p[3]["wall_seconds"] for p in parts)
-    seed_episodes = sum(len(p[0]) * p[3]["episodes"] for p in parts)
-    ceiling = CEILINGS.get(scenario)
-    reach = (episodes_to_fraction(episodes, curves, 0.9 * ceiling) if ceiling is not None
-             else np.full(len(curves), np.nan))
-    return {"finals": np.concatenate([final_returns(p[2]) for p in parts]), "episodes": episodes, "curves": curves,
-            "wall_s": wall, "episodes_per_s": seed_episodes / wall, "updates_per_s": updates / wall, "reach": reach,
-            "ended_early": [p[3]["ended_early"] for p in parts if p[3].get("ended_early")]}
-
-
-def finished_ranges(out: str, scenario: str, method: str) -> list[str]:
-    """The finished seed-range folders ``OUT/<scenario>/<method>/seeds<A>-<B>`` (a summary.json), by first seed."""
     method_dir = os.path.join(out, scenario, method)
-    if not os.path.isdir(method_dir):
-        return []
-    names = sorted((d for d in os.listdir(method_dir) if d.startswith("seeds")), key=lambda d: int(d[5:].split("-")[0]))
-    return [os.path.join(method_dir, d) for d in names if os.path.exists(os.path.join(method_dir, d, "summary.json"))]
+    cell = load_cell(method_dir, scenario, method)
+    if cell is None:
+        return None
+    runs = [os.path.join(method_dir, d) for d in seed_range_folders(method_dir, finished=True)]
+    updates = sum(pd.read_csv(os.path.join(d, "metrics.csv")).groupby("seed")["updates"].max().sum() for d in runs)
+    seed_episodes = sum(len(seeds) * summary["episodes"] for seeds, _, _, summary in map(load_run_result, runs))
+    ceiling = CEILINGS.get(scenario)
+    reach = (episodes_to_fraction(cell.episodes, cell.curves, 0.9 * ceiling) if ceiling is not None
+             else np.full(len(cell.curves), np.nan))
+    return {"finals": cell.finals, "episodes": cell.episodes, "curves": cell.curves, "wall_s": cell.wall_seconds,
+            "episodes_per_s": seed_episodes / cell.wall_seconds, "updates_per_s": updates / cell.wall_seconds,
+            "reach": reach, "ended_early": [why for _, why in cell.ended_early]}
 
 
 def main(argv=None) -> None:
@@ -107,8 +100,8 @@ def main(argv=None) -> None:
     use_host_devices(args.devices)  # before JAX starts
     from jaxmac.plotting import plot_curves
     from jaxmac.presets import scenario_config
-    from jaxmac.study.stats import reach_summary, return_column, welch_p
-    from jaxmac.study.sweep import PROTOCOLS, TOMACVF, WO_SJERT, Cell, run_sweep
+    from jaxmac.study.stats import reach_summary, welch_p
+    from jaxmac.study.sweep import PROTOCOLS, TOMACVF, WO_SJERT, Cell, protocol_cell, run_sweep
 
     first, count = args.seeds
     if args.protocol is not None:
@@ -116,18 +109,12 @@ def main(argv=None) -> None:
             raise SystemExit(f"--protocol {args.protocol!r}: valid protocols are {list(PROTOCOLS)}")
         if args.assignments or args.episodes is not None:
             raise SystemExit("--protocol sets the budget and the settings: drop --episodes and --set")
-        proto = PROTOCOLS[args.protocol]
         out = args.out or os.path.join("experiments", "sweeps", args.protocol)
         methods, changed = [TOMACVF, WO_SJERT], ()
-        cells = []
         for m in methods:
-            if (why := proto.not_run_reason(m.name, args.scenario)) is not None:
+            if (why := PROTOCOLS[args.protocol].not_run_reason(m.name, args.scenario)) is not None:
                 raise SystemExit(f"protocol {args.protocol} does not run {m.name} on {args.scenario}: {why}")
-            budget = proto.budget(args.scenario, m.config(args.scenario, proto.tiny).episodes)
-            rule = None if proto.end_early is None else dataclasses.replace(proto.end_early,
-                                                                            column=return_column(args.scenario))
-            cells.append(Cell("sjert_vs_jert", m, args.scenario, first, count, budget, proto.tiny,
-                              proto.scale_schedules, rule))
+        cells = [protocol_cell("sjert_vs_jert", args.protocol, m, args.scenario, first, count) for m in methods]
     else:
         out = args.out or os.path.join("experiments", "sjert_vs_jert")
         extra = scenario_config(args.scenario, tiny=args.tiny).override_strings(args.assignments).flat_dict()
@@ -140,11 +127,10 @@ def main(argv=None) -> None:
         enable_compilation_cache()
         run_sweep(cells, out, devices=args.devices, progress=not args.no_progress)
 
-    ranges = {m.label: finished_ranges(out, args.scenario, m.name) for m in methods}
-    missing = [label for label, dirs in ranges.items() if not dirs]
+    rows = {m.label: run_row(out, args.scenario, m.name) for m in methods}
+    missing = [label for label, row in rows.items() if row is None]
     if missing:
         raise SystemExit(f"no finished run of {', '.join(missing)} in {os.path.join(out, args.scenario)} yet")
-    rows = {label: run_row(dirs, args.scenario) for label, dirs in ranges.items()}
     sizes = view_bytes(cells[0].config())
     sjert, jert = rows[TOMACVF.label], rows[WO_SJERT.label]
     seeds = {label: len(r["finals"]) for label, r in rows.items()}

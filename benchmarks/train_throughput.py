@@ -3,10 +3,10 @@
     python benchmarks/train_throughput.py [--algorithm tomacvf] --scenario boxpushing-6x6 [--seeds 1 4 8]
                                           [--workers 1 2] [--devices 2] [--chunks 3] [--set KEY=VALUE ...]
 
-For every (seeds, workers) pair (several workers each held to a core of its own), and every (seeds, devices) pair of one process whose seeds are sharded over that many
-host devices (``jax.sharding``, the way that carries to GPUs and hosts), each worker process compiles ``Trainer.seeds_chunk`` over its
-share of the seeds (compile time reported apart) and then times ``--chunks`` chunks of the
-scenario's configuration of that algorithm (warm-up chunks first fill the ring up to where
+For every (seeds, workers) pair (several workers each held to a core of its own), and every (seeds, devices) pair
+of one process whose seeds are sharded over that many host devices (``jax.sharding``, the way that carries to GPUs
+and hosts), each worker process compiles ``Trainer.seeds_chunk`` over its share of the seeds (compile time reported
+apart) and then times ``--chunks`` chunks of the scenario's configuration of that algorithm (warm-up chunks first fill the ring up to where
 gradient steps run). Printed: training episodes/s and env steps/s per seed and in total, wall and
 per CPU-second, and the ratio to the original implementation's recorded speed per CPU-second of
 all its processes (docs/baselines.md §4, measured on this machine kind): the same learner where the

@@ -25,14 +25,13 @@ from __future__ import annotations
 
 import json
 import os
-import re
 
 import numpy as np
 
 from jaxmac.plotting import mean_and_standard_error, save_figure, smooth
 from jaxmac.scenarios import CEILINGS, family
 from jaxmac.study.stats import (aggregate, compare_methods, episodes_to_fraction, load_progress, load_sweep,
-                                reach_summary, welch_p, who_wins)
+                                reach_summary, seed_range_folders, welch_p, who_wins)
 from jaxmac.study.sweep import EXPERIMENTS, PROTOCOLS, Cell, estimate_seconds, method_by_name
 
 REFERENCE = "tomacvf"
@@ -386,8 +385,7 @@ def questions_section(results, labels: dict[str, str]) -> list[str]:
 
 def _finished_run_folders(sweep_dir: str, scenario: str, method: str) -> list[str]:
     method_dir = os.path.join(sweep_dir, scenario, method)
-    return [os.path.join(method_dir, d) for d in sorted(os.listdir(method_dir))
-            if re.fullmatch(r"seeds\d+-\d+", d) and os.path.exists(os.path.join(method_dir, d, "summary.json"))]
+    return [os.path.join(method_dir, d) for d in seed_range_folders(method_dir, finished=True)]
 
 
 def protocol_of_configs(sweep_dir: str, results) -> str | None:
@@ -535,13 +533,8 @@ def write_page(sweep_dir: str, out_dir: str, experiments: list[str], protocol: s
         if experiment_figure(results, experiment, os.path.join(out_dir, experiment)):
             lines += [f"![{experiment}]({experiment}.png)", ""]
         methods, scenarios = EXPERIMENTS[experiment]
-        idle = [s for s in scenarios if not any((s, m.name) in results for m in methods)]
-        running = [s for s in idle if any((s, m.name) in progress for m in methods)]
-        idle = [s for s in idle if s not in running]
-        for scenario in running:
-            lines += [f"**{scenario}**: no method has finished yet; running or interrupted: " + "; ".join(
-                f"{m.label or m.name}: {progress_text(progress[(scenario, m.name)], scenario, m.name, rates)}"
-                for m in methods if (scenario, m.name) in progress) + ".", ""]
+        # a scenario no cell of which has finished or started gets one line, the others their table
+        idle = [s for s in scenarios if not any((s, m.name) in results or (s, m.name) in progress for m in methods)]
         for scenario in scenarios:
             if scenario not in idle:
                 lines += scenario_table(results, experiment, scenario, protocol, progress, rates)

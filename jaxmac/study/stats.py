@@ -107,38 +107,59 @@ def load_run_result(run_dir: str) -> tuple[list[int], np.ndarray, np.ndarray, di
     return list(range(first, first + summary["seeds"])), episodes, curves, summary
 
 
-def load_sweep(sweep_dir: str) -> dict[tuple[str, str], CellResult]:
-    """Every finished cell of a sweep folder (``<scenario>/<method>/seeds<A>-<B>/``), the seed ranges of a
-    (scenario, method) merged; the curves are cut to the evaluation points all ranges have. Unfinished cells are
-    left out, and files are skipped (a results page in ``SWEEP_DIR/results/`` holds no cell); a seed that two ranges
-    both hold is an error."""
-    results: dict[tuple[str, str], CellResult] = {}
+def method_folders(sweep_dir: str):
+    """(scenario, method, folder) of every ``<scenario>/<method>/`` folder of a sweep, sorted; files are skipped (a
+    results page in ``SWEEP_DIR/results/`` holds no cell)."""
     for scenario in sorted(os.listdir(sweep_dir)):
         if not os.path.isdir(os.path.join(sweep_dir, scenario)):
             continue
         for method in sorted(os.listdir(os.path.join(sweep_dir, scenario))):
-            method_dir = os.path.join(sweep_dir, scenario, method)
-            if not os.path.isdir(method_dir):
-                continue
-            ranges = sorted((d for d in os.listdir(method_dir) if re.fullmatch(r"seeds\d+-\d+", d)),
-                            key=lambda d: int(d[5:].split("-")[0]))
-            finished = [d for d in ranges if os.path.exists(os.path.join(method_dir, d, "summary.json"))]
-            parts = [load_run_result(os.path.join(method_dir, d)) for d in finished]
-            if not parts:
-                continue
-            seeds = [s for p in parts for s in p[0]]
-            if len(set(seeds)) != len(seeds):
-                raise ValueError(f"{method_dir}: seed ranges overlap ({ranges})")
-            budgets = {planned_episodes(os.path.join(method_dir, d), p[3]) for d, p in zip(finished, parts)}
-            if len(budgets) != 1:
-                raise ValueError(f"{method_dir}: seed ranges were trained for different budgets {sorted(budgets)}")
-            points = min(p[1].shape[0] for p in parts)
-            curves = np.concatenate([p[2][:, :points] for p in parts])
-            results[(scenario, method)] = CellResult(
-                scenario, method, seeds, np.concatenate([final_returns(p[2]) for p in parts]), parts[0][1][:points],
-                curves, budgets.pop(), float(sum(p[3].get("wall_seconds", 0.0) for p in parts)),
-                trained=min(int(p[3]["episodes"]) for p in parts),
-                ended_early=tuple((d, p[3]["ended_early"]) for d, p in zip(finished, parts) if p[3].get("ended_early")))
+            if os.path.isdir(os.path.join(sweep_dir, scenario, method)):
+                yield scenario, method, os.path.join(sweep_dir, scenario, method)
+
+
+def seed_range_folders(method_dir: str, finished: bool | None = None) -> list[str]:
+    """The ``seeds<A>-<B>`` folders of a cell, by first seed; ``finished`` True / False keeps those with / without
+    a ``summary.json``."""
+    if not os.path.isdir(method_dir):
+        return []
+    names = sorted((d for d in os.listdir(method_dir) if re.fullmatch(r"seeds\d+-\d+", d)),
+                   key=lambda d: int(d[5:].split("-")[0]))
+    return [d for d in names
+            if finished is None or os.path.exists(os.path.join(method_dir, d, "summary.json")) == finished]
+
+
+def load_cell(method_dir: str, scenario: str, method: str) -> CellResult | None:
+    """The finished seed ranges of one cell folder merged (None when none has finished); the curves are cut to the
+    evaluation points all ranges have. A seed that two ranges both hold, or ranges planned for different budgets,
+    are errors."""
+    finished = seed_range_folders(method_dir, finished=True)
+    parts = [load_run_result(os.path.join(method_dir, d)) for d in finished]
+    if not parts:
+        return None
+    seeds = [s for p in parts for s in p[0]]
+    if len(set(seeds)) != len(seeds):
+        raise ValueError(f"{method_dir}: seed ranges overlap ({seed_range_folders(method_dir)})")
+    budgets = {planned_episodes(os.path.join(method_dir, d), p[3]) for d, p in zip(finished, parts)}
+    if len(budgets) != 1:
+        raise ValueError(f"{method_dir}: seed ranges were trained for different budgets {sorted(budgets)}")
+    points = min(p[1].shape[0] for p in parts)
+    curves = np.concatenate([p[2][:, :points] for p in parts])
+    return CellResult(
+        scenario, method, seeds, np.concatenate([final_returns(p[2]) for p in parts]), parts[0][1][:points],
+        curves, budgets.pop(), float(sum(p[3].get("wall_seconds", 0.0) for p in parts)),
+        trained=min(int(p[3]["episodes"]) for p in parts),
+        ended_early=tuple((d, p[3]["ended_early"]) for d, p in zip(finished, parts) if p[3].get("ended_early")))
+
+
+def load_sweep(sweep_dir: str) -> dict[tuple[str, str], CellResult]:
+    """Every finished cell of a sweep folder (``<scenario>/<method>/seeds<A>-<B>/``), the seed ranges of a
+    (scenario, method) merged (``load_cell``). Unfinished cells are left out."""
+    results: dict[tuple[str, str], CellResult] = {}
+    for scenario, method, method_dir in method_folders(sweep_dir):
+        cell = load_cell(method_dir, scenario, method)
+        if cell is not None:
+            results[(scenario, method)] = cell
     return results
 
 
@@ -158,26 +179,20 @@ def load_progress(sweep_dir: str) -> dict[tuple[str, str], list[RangeProgress]]:
     import csv
 
     progress: dict[tuple[str, str], list[RangeProgress]] = {}
-    for scenario in sorted(os.listdir(sweep_dir)):
-        for method in sorted(os.listdir(os.path.join(sweep_dir, scenario))) if os.path.isdir(
-                os.path.join(sweep_dir, scenario)) else ():
-            method_dir = os.path.join(sweep_dir, scenario, method)
-            if not os.path.isdir(method_dir):
+    for scenario, method, method_dir in method_folders(sweep_dir):
+        for d in seed_range_folders(method_dir, finished=False):
+            run = os.path.join(method_dir, d)
+            if not os.path.exists(os.path.join(run, "config.json")):
                 continue
-            for d in sorted(os.listdir(method_dir), key=lambda d: (len(d), d)):
-                run = os.path.join(method_dir, d)
-                if (not re.fullmatch(r"seeds\d+-\d+", d) or os.path.exists(os.path.join(run, "summary.json"))
-                        or not os.path.exists(os.path.join(run, "config.json"))):
-                    continue
-                last: dict[str, int] = {}
-                if os.path.exists(os.path.join(run, "metrics.csv")):
-                    with open(os.path.join(run, "metrics.csv"), newline="") as f:
-                        for row in csv.DictReader(f):
-                            last[row["seed"]] = int(row["episodes"])
-                first, end = (int(x) for x in d[5:].split("-"))
-                episodes = min(last.values()) if len(last) == end - first else 0
-                progress.setdefault((scenario, method), []).append(
-                    RangeProgress(d, end - first, episodes, planned_episodes(run, {"episodes": 0})))
+            last: dict[str, int] = {}  # seed -> episodes at its newest metrics row
+            if os.path.exists(os.path.join(run, "metrics.csv")):
+                with open(os.path.join(run, "metrics.csv"), newline="") as f:
+                    for row in csv.DictReader(f):
+                        last[row["seed"]] = int(row["episodes"])
+            first, end = (int(x) for x in d[5:].split("-"))
+            episodes = min(last.values()) if len(last) == end - first else 0
+            progress.setdefault((scenario, method), []).append(
+                RangeProgress(d, end - first, episodes, planned_episodes(run, {"episodes": 0})))
     return progress
 
 

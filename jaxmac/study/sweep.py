@@ -235,6 +235,16 @@ def not_run_cells(experiment: str, protocol: str) -> list[tuple[str, str, str]]:
             if (why := proto.not_run_reason(m.name, s)) is not None]
 
 
+def protocol_cell(experiment: str, protocol: str, method: Method, scenario: str, first_seed: int,
+                  seeds: int) -> Cell:
+    """``method`` on ``scenario`` as ``protocol`` runs it: its budget, its schedules and its rule for ending early."""
+    proto = PROTOCOLS[protocol]
+    budget = proto.budget(scenario, method.config(scenario, proto.tiny).episodes)
+    end_early = None if proto.end_early is None else dataclasses.replace(proto.end_early,
+                                                                          column=return_column(scenario))
+    return Cell(experiment, method, scenario, first_seed, seeds, budget, proto.tiny, proto.scale_schedules, end_early)
+
+
 def plan(experiment: str, protocol: str = "cpu", seeds: tuple[int, int] | None = None,
          only: str | None = None, methods: tuple[Method, ...] | None = None) -> list[Cell]:
     """Every cell of ``experiment`` under ``protocol``; ``seeds`` = (first seed, count) replaces the protocol's
@@ -248,16 +258,8 @@ def plan(experiment: str, protocol: str = "cpu", seeds: tuple[int, int] | None =
     first, count = seeds if seeds is not None else (0, proto.seeds)
     own, scenarios = EXPERIMENTS[experiment]
     methods = own if methods is None else methods
-    cells = []
-    for scenario in scenarios:
-        for method in methods:
-            if proto.not_run_reason(method.name, scenario) is not None:
-                continue
-            budget = proto.budget(scenario, method.config(scenario, proto.tiny).episodes)
-            end_early = (None if proto.end_early is None else
-                         dataclasses.replace(proto.end_early, column=return_column(scenario)))
-            cells.append(Cell(experiment, method, scenario, first, count, budget, proto.tiny, proto.scale_schedules,
-                              end_early))
+    cells = [protocol_cell(experiment, protocol, method, scenario, first, count)
+             for scenario in scenarios for method in methods if proto.not_run_reason(method.name, scenario) is None]
     if only is not None:
         cells = [c for c in cells if only in c.path]
         if not cells:
