@@ -101,7 +101,7 @@ def main(argv=None) -> None:
     from jaxmac.plotting import plot_curves
     from jaxmac.presets import scenario_config
     from jaxmac.study.stats import reach_summary, welch_p
-    from jaxmac.study.sweep import PROTOCOLS, TOMACVF, WO_SJERT, Cell, protocol_cell, run_sweep
+    from jaxmac.study.sweep import PROTOCOLS, TOMACVF, WO_SJERT, Cell, fit_to_existing, protocol_cell, run_sweep
 
     first, count = args.seeds
     if args.protocol is not None:
@@ -114,7 +114,8 @@ def main(argv=None) -> None:
         for m in methods:
             if (why := PROTOCOLS[args.protocol].not_run_reason(m.name, args.scenario)) is not None:
                 raise SystemExit(f"protocol {args.protocol} does not run {m.name} on {args.scenario}: {why}")
-        cells = [protocol_cell("sjert_vs_jert", args.protocol, m, args.scenario, first, count) for m in methods]
+        cells = fit_to_existing([protocol_cell("sjert_vs_jert", args.protocol, m, args.scenario, first, count)
+                                 for m in methods], out)
     else:
         out = args.out or os.path.join("experiments", "sjert_vs_jert")
         extra = scenario_config(args.scenario, tiny=args.tiny).override_strings(args.assignments).flat_dict()

@@ -115,7 +115,7 @@ def main(argv=None) -> None:
         update_args = (state.params, state.target_params, state.opt_state, batch, jax.random.key(2), progress)
         print_roofline(update, update_args, config, env, batch.length.shape[0], full + 1, args.repeats)
     if args.ops:
-        print(f"  XLA operation kinds of the full-length update (ms per update; a loop's time includes its body's):")
+        print("  XLA operation kinds of the full-length update (ms per update; a loop's time includes its body's):")
         for kind, ms in op_kinds(update, (state.params, state.target_params, state.opt_state, batch, jax.random.key(2),
                                           progress), args.repeats)[:args.ops]:
             print(f"    {ms:8.1f} ms  {kind}")

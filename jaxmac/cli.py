@@ -208,14 +208,18 @@ def seed_range(text: str) -> tuple[int, int]:
 def cmd_sweep(args) -> int:
     from jaxmac.runs import enable_compilation_cache, use_host_devices
     from jaxmac.runs.resources import default_devices, fit_devices
-    from jaxmac.study.sweep import PROTOCOLS, cell_status, estimate_seconds, load_rates, not_run_cells, plan, run_sweep
+    from jaxmac.study.stats import trained_episodes
+    from jaxmac.study.sweep import (PROTOCOLS, cell_status, estimate_seconds, fit_to_existing, load_rates,
+                                    not_run_cells, plan, run_sweep)
 
     methods = None
     if args.config is not None:  # a method file: methods added to (or replacing) the experiment's
         from jaxmac.config_files import sweep_methods
 
         methods = sweep_methods(args.config, args.experiment)
-    cells = plan(args.experiment, args.protocol, args.seeds, args.only, methods)
+    out = args.out or os.path.join("experiments", "sweeps", args.protocol)
+    # seeds that seed-range folders of a cell already hold are taken from them, not trained again
+    cells = fit_to_existing(plan(args.experiment, args.protocol, args.seeds, args.only, methods), out)
     # by default one process shards each cell's seeds over every core it may use (faster than a process per core)
     if args.devices is not None:
         devices = args.devices
@@ -225,24 +229,28 @@ def cmd_sweep(args) -> int:
     use_host_devices(devices)  # before JAX starts
     if args.devices is None and devices > 1:
         devices = fit_devices(devices, [c.seeds for c in cells])
-    out = args.out or os.path.join("experiments", "sweeps", args.protocol)
     print(f"sweep {args.experiment}, protocol {args.protocol} ({PROTOCOLS[args.protocol].about}): {len(cells)} cells "
           f"into {out}" + (f", each cell's seeds sharded over {devices} devices" if devices > 1 else ""))
     if args.dry_run:
         rates = load_rates(args.rates)
         total, unknown = 0.0, 0
         for cell in cells:
-            estimate = estimate_seconds(cell, rates)
-            if estimate is None:
+            status = cell_status(out, cell)
+            trained = trained_episodes(os.path.join(out, cell.path), cell.seeds) if status != "new" else 0
+            estimate = estimate_seconds(cell, rates, cell.episodes - trained)
+            if status == "done":
+                cost = "nothing left to run"
+            elif estimate is None:
                 unknown += 1
                 cost = "cost not measured"
             else:
                 total += estimate[0]
-                cost = f"~{estimate[0] / 3600:.1f} core-h (rate of {estimate[1]})"
-            print(f"  {cell.path}: {cell.episodes} episodes per seed, {cell_status(out, cell)}, {cost}")
+                cost = f"~{estimate[0] / 3600:.1f} core-h{' left' if trained else ''} (rate of {estimate[1]})"
+            print(f"  {cell.path}: {cell.episodes} episodes per seed, {status}"
+                  + (f" at {trained}" if trained and status != "done" else "") + f", {cost}")
         for scenario, method, why in not_run_cells(args.experiment, args.protocol):
             print(f"  {scenario}/{method}: not run under this protocol: {why}")
-        print(f"estimated {total / 3600:.1f} core-hours at the measured rates of {args.rates}"
+        print(f"estimated {total / 3600:.1f} core-hours left at the measured rates of {args.rates}"
               + (f"; {unknown} cells not measured" if unknown else ""))
         return 0
     if args.cluster == "ray":

@@ -133,6 +133,31 @@ def test_a_cell_whose_run_trained_a_smaller_budget_is_extended(tmp_path, monkeyp
     assert json.loads(attempts[-1])["action"] == "extend"
 
 
+def test_seeds_that_existing_ranges_hold_are_taken_from_them_not_trained_twice(tmp_path, monkeypatch):
+    # a cell run as two halves (--seeds 0:2 and 2:4, e.g. one process per core), then the sweep asked for seeds 0-3
+    from jaxmac.study.sweep import fit_to_existing
+
+    calls = []
+    _fake_runs(monkeypatch, calls)
+    out = str(tmp_path)
+    first_half = plan("ablation", "smoke", seeds=(0, 2), only="overcooked-B/tomacvf/")
+    run_sweep(first_half, out, log=lambda *_: None)
+    four = plan("ablation", "smoke", seeds=(0, 4), only="overcooked-B/tomacvf/")
+    fitted = fit_to_existing(four, out)
+    assert [c.path for c in fitted] == ["overcooked-B/tomacvf/seeds0-2", "overcooked-B/tomacvf/seeds2-4"]
+    assert [(c.first_seed, c.seeds) for c in fitted] == [(0, 2), (2, 2)] and fitted[0].config() == four[0].config()
+    calls.clear()
+    assert run_sweep(fitted, out, log=lambda *_: None) == {fitted[0].path: "skipped", fitted[1].path: "trained"}
+    assert calls == [("train", str(tmp_path / fitted[1].path))]
+    assert [c.path for c in fit_to_existing(four, out)] == [c.path for c in fitted]  # now both halves are done
+    # seeds 4-7 are a new range of their own; seeds 1-4 would split seeds0-2 and are refused, naming it
+    assert [c.path for c in fit_to_existing(plan("ablation", "smoke", seeds=(4, 4), only="overcooked-B/tomacvf/"),
+                                            out)] == ["overcooked-B/tomacvf/seeds4-8"]
+    with pytest.raises(ValueError, match=r"seeds0-2 holds seeds that another range or the asked seeds 1..4 only "
+                                         r"partly hold; ask for seeds that the existing ranges \[\(0, 2\), \(2, 4\)\]"):
+        fit_to_existing(plan("ablation", "smoke", seeds=(1, 4), only="overcooked-B/tomacvf/"), out)
+
+
 def test_a_real_cell_runs_then_is_skipped(tmp_path):
     cells = plan("bp", "smoke", only="boxpushing-6x6/tomacvf/")
     assert run_sweep(cells, str(tmp_path), progress=False, log=lambda *_: None) == {cells[0].path: "trained"}

@@ -173,24 +173,30 @@ class RangeProgress:
     budget: int  # training episodes per seed it is configured for
 
 
+def trained_episodes(run_dir: str, seeds: int) -> int:
+    """Training episodes per seed that the run folder ``run_dir`` of ``seeds`` seeds has in its ``metrics.csv`` (the
+    least over its seeds; 0 before every seed has a row)."""
+    import csv
+
+    last: dict[str, int] = {}  # seed -> episodes at its newest metrics row
+    if os.path.exists(os.path.join(run_dir, "metrics.csv")):
+        with open(os.path.join(run_dir, "metrics.csv"), newline="") as f:
+            for row in csv.DictReader(f):
+                last[row["seed"]] = int(row["episodes"])
+    return min(last.values()) if len(last) == seeds else 0
+
+
 def load_progress(sweep_dir: str) -> dict[tuple[str, str], list[RangeProgress]]:
     """Every seed range of a sweep folder that has a run folder (its ``config.json``) but no ``summary.json`` yet,
     per (scenario, method): what a results page reports of cells still running or interrupted."""
-    import csv
-
     progress: dict[tuple[str, str], list[RangeProgress]] = {}
     for scenario, method, method_dir in method_folders(sweep_dir):
         for d in seed_range_folders(method_dir, finished=False):
             run = os.path.join(method_dir, d)
             if not os.path.exists(os.path.join(run, "config.json")):
                 continue
-            last: dict[str, int] = {}  # seed -> episodes at its newest metrics row
-            if os.path.exists(os.path.join(run, "metrics.csv")):
-                with open(os.path.join(run, "metrics.csv"), newline="") as f:
-                    for row in csv.DictReader(f):
-                        last[row["seed"]] = int(row["episodes"])
             first, end = (int(x) for x in d[5:].split("-"))
-            episodes = min(last.values()) if len(last) == end - first else 0
+            episodes = trained_episodes(run, end - first)
             progress.setdefault((scenario, method), []).append(
                 RangeProgress(d, end - first, episodes, planned_episodes(run, {"episodes": 0})))
     return progress

@@ -267,6 +267,37 @@ def plan(experiment: str, protocol: str = "cpu", seeds: tuple[int, int] | None =
     return cells
 
 
+def fit_to_existing(cells: list[Cell], out_dir: str) -> list[Cell]:
+    """``cells`` with each one whose seeds other seed-range folders of its method already hold split along them:
+    asked for seeds 0-3 where ``seeds0-2/`` exists, the sweep takes ``seeds0-2`` as it stands (done, resumed or
+    extended like any cell) and plans ``seeds2-4`` for the rest, instead of training seeds 0-1 a second time in
+    ``seeds0-4/`` (the results merge a cell's ranges and refuse a seed held twice). A cell's own folder, when it
+    exists, is kept as is; a range that holds some of the cell's seeds and some outside it is an error naming it."""
+    from jaxmac.study.stats import seed_range_folders
+
+    fitted = []
+    for cell in cells:
+        method_dir = os.path.join(out_dir, cell.scenario, cell.method.name)
+        first, end = cell.first_seed, cell.first_seed + cell.seeds
+        if os.path.exists(os.path.join(out_dir, cell.path)):
+            fitted.append(cell)
+            continue
+        ranges = [tuple(int(v) for v in name[5:].split("-")) for name in seed_range_folders(method_dir)]
+        inside = sorted((a, b) for a, b in ranges if first <= a and b <= end)
+        straddling = [f"seeds{a}-{b}" for a, b in ranges if a < end and first < b and (a, b) not in inside]
+        straddling += [f"seeds{a}-{b}" for (_, end_before), (a, b) in zip(inside, inside[1:]) if a < end_before]
+        if straddling:
+            raise ValueError(f"{method_dir}: {', '.join(straddling)} holds seeds that another range or the asked seeds "
+                             f"{first}..{end - 1} only partly hold; ask for seeds that the existing ranges "
+                             f"{sorted(ranges)} tile without overlap (--seeds A:B)")
+        if not inside:
+            fitted.append(cell)
+            continue
+        cuts = sorted({first, end} | {v for r in inside for v in r})
+        fitted += [dataclasses.replace(cell, first_seed=a, seeds=b - a) for a, b in zip(cuts, cuts[1:])]
+    return fitted
+
+
 def cell_status(out_dir: str, cell: Cell) -> str:
     """'done' (a summary), 'interrupted' (a run folder without one), 'shorter' (the cell's run trained to a smaller
     budget, finished or not: the sweep extends it, as ``jaxmac train --resume RUN --episodes N`` would) or 'new'. A
@@ -304,8 +335,9 @@ def load_rates(path: str) -> dict[str, dict]:
         return json.load(f)
 
 
-def estimate_seconds(cell: Cell, rates: dict[str, dict]) -> tuple[float, str] | None:
-    """Seconds of one core that ``cell`` needs at a measured rate (seed-episodes per second), and the pair measured:
+def estimate_seconds(cell: Cell, rates: dict[str, dict], episodes: int | None = None) -> tuple[float, str] | None:
+    """Seconds of one core that ``cell`` needs (for ``episodes`` per seed; default its budget) at a measured rate
+    (seed-episodes per second), and the pair measured:
     the cell's own (method, scenario), else the same method on the nearest measured scenario of its family (Box
     Pushing grids by size, Overcooked and Warehouse maps by letter); None when the method was not measured there."""
     key = f"{cell.method.name}@{cell.scenario}"
@@ -317,7 +349,8 @@ def estimate_seconds(cell: Cell, rates: dict[str, dict]) -> tuple[float, str] | 
         if not measured:
             return None
         key = f"{cell.method.name}@{min(measured, key=lambda s: abs(order.index(s) - here))}"
-    return cell.seeds * cell.episodes / rates[key]["episodes_per_s"], key
+    episodes = cell.episodes if episodes is None else episodes
+    return cell.seeds * episodes / rates[key]["episodes_per_s"], key
 
 
 def run_sweep(cells: list[Cell], out_dir: str, devices: int = 1, progress: bool = True, log=print,
