@@ -70,3 +70,46 @@ def test_a_sweep_shards_seeds_over_the_cores_it_may_use_by_default(monkeypatch):
     assert resources.default_devices([4]) == 1
     # once JAX runs, a default is cut to the devices it sees (this test process: one CPU device)
     assert resources.fit_devices(2, [4]) == 1
+
+
+# A run trained with its seeds sharded over 2 devices, stopped after its first chunk (and, for reference, the same
+# run uninterrupted), in a fresh interpreter split into 2 devices.
+SAVE_SHARDED = textwrap.dedent("""
+    import sys
+    from jaxmac.presets import scenario_config
+    from jaxmac.runs import train_run
+
+    config = scenario_config("boxpushing-6x6", tiny=True).override(episodes=32, horizon=30)
+    assert train_run(config, 2, sys.argv[1], rounds_per_chunk=2, progress=False, devices=2,
+                     stop_after_chunks=1) is None
+    train_run(config, 2, sys.argv[2], rounds_per_chunk=2, progress=False, devices=2)
+    print("OK")
+""")
+
+
+def test_a_run_saved_from_two_devices_resumes_on_one(tmp_path):
+    import csv
+
+    import jax
+    import numpy as np
+
+    from jaxmac.runs import resume_run
+
+    assert jax.device_count() == 1
+    killed, full = str(tmp_path / "killed"), str(tmp_path / "full")
+    env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=2", JAX_PLATFORMS="cpu")
+    out = subprocess.run([sys.executable, "-c", SAVE_SHARDED, killed, full], env=env, capture_output=True, text=True,
+                         timeout=900)
+    assert out.returncode == 0 and out.stdout.strip().endswith("OK"), out.stderr[-3000:]
+    with open(os.path.join(killed, "metrics.csv"), newline="") as f:
+        before = list(csv.DictReader(f))
+    resumed = resume_run(killed, progress=False, devices=1)  # restored from its checkpoint, not started over
+    with open(os.path.join(killed, "metrics.csv"), newline="") as f:
+        after = list(csv.DictReader(f))
+    with open(os.path.join(full, "metrics.csv"), newline="") as f:
+        reference = list(csv.DictReader(f))
+    assert before and after[:len(before)] == before and len(after) == len(reference) > len(before)
+    for name in ("loss", "train_return", "param_norm"):
+        np.testing.assert_allclose([float(r[name]) for r in after], [float(r[name]) for r in reference], rtol=1e-5,
+                                   atol=1e-5, err_msg=name)
+    assert resumed["episodes"] == 32

@@ -82,7 +82,9 @@ def start_point(out_dir: str, programs: Programs, meta: dict, need_rows: bool) -
 
     rounds_per_chunk = programs.trainer.rounds_per_chunk
     complete = metrics.complete_rounds(seed_ids)
-    abstract = jax.eval_shape(_to_saveable, state)
+    # restored onto the devices of a fresh state here (one device), whatever devices the run was saved from: a run
+    # trained with its seeds sharded over 2 devices resumes on 1 and back (the caller places it, ``placed``)
+    abstract = jax.tree.map(ocp.utils.to_shape_dtype_struct, _to_saveable(state))
     with _quiet_orbax() as failed:
         mngr = ocp.CheckpointManager(os.path.abspath(os.path.join(out_dir, "checkpoints")),
                                      options=ocp.CheckpointManagerOptions(create=False, read_only=True))
