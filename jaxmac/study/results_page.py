@@ -326,7 +326,8 @@ def questions_section(results, labels: dict[str, str]) -> list[str]:
         not_answered = f"{NOT_ANSWERED} on {len(untested)} ({', '.join(untested)})" if untested else ""
         if scenarios:
             answered = True
-            lines.append(f"- {labels[variant]}, {scenarios} scenarios with baselines finished: best mean on "
+            lines.append(f"- {labels[variant]}, {scenarios} scenario{'s' if scenarios != 1 else ''} with baselines "
+                         "finished: best mean on "
                          f"{len(won)}{' (' + ', '.join(won) + ')' if won else ''}; not told apart from the best on "
                          f"{len(tied)}{' (' + ', '.join(tied) + ')' if tied else ''}; below the best, told apart, on "
                          f"{len(below)}{' (' + ', '.join(below) + ')' if below else ''}"
