@@ -50,6 +50,16 @@ class MetricsFile:
         return None
 
 
+def episodes_per_seed(path: str) -> dict[str, int]:
+    """{seed: training episodes at its newest row} of the metrics.csv at ``path`` ({} when there is none)."""
+    last: dict[str, int] = {}
+    if os.path.exists(path):
+        with open(path, newline="") as f:
+            for row in csv.DictReader(f):
+                last[row["seed"]] = int(row["episodes"])
+    return last
+
+
 def read_metrics_file(path: str) -> MetricsFile:
     if not os.path.exists(path):
         return MetricsFile(None, [], 0)

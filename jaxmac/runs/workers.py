@@ -20,6 +20,7 @@ from jaxmac.config import TrainConfig
 from jaxmac.runs.folders import lock_run_folder, read_meta, refuse_run_files, write_json_atomic
 from jaxmac.runs.loggers import check_new_stream, log_choice, require, with_logger
 from jaxmac.runs.loop import extend_budget, extended_meta
+from jaxmac.runs.metrics_csv import episodes_per_seed
 from jaxmac.runs.resources import check_new_run
 
 
@@ -118,14 +119,7 @@ def is_worker_run(out_dir: str) -> bool:
 
 def _episodes_done(job_dir: str) -> int:
     """Episodes trained so far in a worker folder (from its metrics.csv), summed over its seeds."""
-    path = os.path.join(job_dir, "metrics.csv")
-    if not os.path.exists(path):
-        return 0
-    last: dict[str, int] = {}
-    with open(path, newline="") as f:
-        for row in csv.DictReader(f):
-            last[row["seed"]] = int(row["episodes"])
-    return sum(last.values())
+    return sum(episodes_per_seed(os.path.join(job_dir, "metrics.csv")).values())
 
 
 def _finished(job_dir: str) -> bool:

@@ -31,7 +31,7 @@ import numpy as np
 from jaxmac.plotting import mean_and_standard_error, save_figure, smooth
 from jaxmac.scenarios import CEILINGS, family
 from jaxmac.study.stats import (aggregate, compare_methods, episodes_to_fraction, load_progress, load_sweep,
-                                reach_summary, seed_range_folders, welch_p, who_wins)
+                                reach_summary, seed_range, seed_range_folders, welch_p, who_wins)
 from jaxmac.study.sweep import EXPERIMENTS, PROTOCOLS, Cell, estimate_seconds, method_by_name
 
 REFERENCE = "tomacvf"
@@ -141,7 +141,7 @@ def progress_text(ranges, scenario: str, method: str, rates: dict | None) -> str
     where a training rate of the method was measured (``jaxmac calibrate``), the core-hours they still cost at it."""
     parts, left = [], 0
     for r in ranges:
-        first = int(r.folder[5:].split("-")[0])
+        first = seed_range(r.folder)[0]
         parts.append(f"{r.episodes:,} of {r.budget:,} episodes per seed (seeds {first}–{first + r.seeds - 1})")
         left += r.seeds * max(r.budget - r.episodes, 0)
     text = "; ".join(parts)

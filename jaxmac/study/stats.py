@@ -118,13 +118,19 @@ def method_folders(sweep_dir: str):
                 yield scenario, method, os.path.join(sweep_dir, scenario, method)
 
 
+def seed_range(folder: str) -> tuple[int, int]:
+    """(first seed, end seed) of a ``seeds<A>-<B>`` folder name: seeds A..B-1."""
+    first, end = folder[5:].split("-")
+    return int(first), int(end)
+
+
 def seed_range_folders(method_dir: str, finished: bool | None = None) -> list[str]:
     """The ``seeds<A>-<B>`` folders of a cell, by first seed; ``finished`` True / False keeps those with / without
     a ``summary.json``."""
     if not os.path.isdir(method_dir):
         return []
     names = sorted((d for d in os.listdir(method_dir) if re.fullmatch(r"seeds\d+-\d+", d)),
-                   key=lambda d: int(d[5:].split("-")[0]))
+                   key=lambda d: seed_range(d)[0])
     return [d for d in names
             if finished is None or os.path.exists(os.path.join(method_dir, d, "summary.json")) == finished]
 
@@ -176,13 +182,9 @@ class RangeProgress:
 def trained_episodes(run_dir: str, seeds: int) -> int:
     """Training episodes per seed that the run folder ``run_dir`` of ``seeds`` seeds has in its ``metrics.csv`` (the
     least over its seeds; 0 before every seed has a row)."""
-    import csv
+    from jaxmac.runs.metrics_csv import episodes_per_seed
 
-    last: dict[str, int] = {}  # seed -> episodes at its newest metrics row
-    if os.path.exists(os.path.join(run_dir, "metrics.csv")):
-        with open(os.path.join(run_dir, "metrics.csv"), newline="") as f:
-            for row in csv.DictReader(f):
-                last[row["seed"]] = int(row["episodes"])
+    last = episodes_per_seed(os.path.join(run_dir, "metrics.csv"))
     return min(last.values()) if len(last) == seeds else 0
 
 
@@ -195,7 +197,7 @@ def load_progress(sweep_dir: str) -> dict[tuple[str, str], list[RangeProgress]]:
             run = os.path.join(method_dir, d)
             if not os.path.exists(os.path.join(run, "config.json")):
                 continue
-            first, end = (int(x) for x in d[5:].split("-"))
+            first, end = seed_range(d)
             episodes = trained_episodes(run, end - first)
             progress.setdefault((scenario, method), []).append(
                 RangeProgress(d, end - first, episodes, planned_episodes(run, {"episodes": 0})))

@@ -273,7 +273,7 @@ def fit_to_existing(cells: list[Cell], out_dir: str) -> list[Cell]:
     extended like any cell) and plans ``seeds2-4`` for the rest, instead of training seeds 0-1 a second time in
     ``seeds0-4/`` (the results merge a cell's ranges and refuse a seed held twice). A cell's own folder, when it
     exists, is kept as is; a range that holds some of the cell's seeds and some outside it is an error naming it."""
-    from jaxmac.study.stats import seed_range_folders
+    from jaxmac.study.stats import seed_range, seed_range_folders
 
     fitted = []
     for cell in cells:
@@ -282,7 +282,7 @@ def fit_to_existing(cells: list[Cell], out_dir: str) -> list[Cell]:
         if os.path.exists(os.path.join(out_dir, cell.path)):
             fitted.append(cell)
             continue
-        ranges = [tuple(int(v) for v in name[5:].split("-")) for name in seed_range_folders(method_dir)]
+        ranges = [seed_range(name) for name in seed_range_folders(method_dir)]
         inside = sorted((a, b) for a, b in ranges if first <= a and b <= end)
         straddling = [f"seeds{a}-{b}" for a, b in ranges if a < end and first < b and (a, b) not in inside]
         straddling += [f"seeds{a}-{b}" for (_, end_before), (a, b) in zip(inside, inside[1:]) if a < end_before]
