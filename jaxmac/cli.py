@@ -206,7 +206,7 @@ def seed_range(text: str) -> tuple[int, int]:
 
 
 def cmd_sweep(args) -> int:
-    from jaxmac.runs import enable_compilation_cache, use_host_devices
+    from jaxmac.runs import enable_compilation_cache, live_holder, use_host_devices
     from jaxmac.runs.resources import default_devices, fit_devices
     from jaxmac.study.stats import trained_episodes
     from jaxmac.study.sweep import (PROTOCOLS, cell_status, estimate_seconds, fit_to_existing, load_rates,
@@ -246,8 +246,11 @@ def cmd_sweep(args) -> int:
             else:
                 total += estimate[0]
                 cost = f"~{estimate[0] / 3600:.1f} core-h{' left' if trained else ''} (rate of {estimate[1]})"
+            holder = live_holder(os.path.join(out, cell.path)) if status != "done" else None
+            if holder:  # its seeds' folder is a live process's now: say so rather than "interrupted"
+                status = f"running (pid {holder['pid']}, since {holder.get('since', '?')})"
             print(f"  {cell.path}: {cell.episodes} episodes per seed, {status}"
-                  + (f" at {trained}" if trained and status != "done" else "") + f", {cost}")
+                  + (f" at {trained}" if trained and not status.startswith("done") else "") + f", {cost}")
         for scenario, method, why in not_run_cells(args.experiment, args.protocol):
             print(f"  {scenario}/{method}: not run under this protocol: {why}")
         print(f"estimated {total / 3600:.1f} core-hours left at the measured rates of {args.rates}"

@@ -23,7 +23,8 @@ import pytest
 
 from jaxmac.cli import main
 from jaxmac.presets import scenario_config
-from jaxmac.runs import LOCK_FILE, RunFolderBusy, load_run, lock_run_folder, resume_run, train_run
+from jaxmac.runs import (LOCK_FILE, RunFolderBusy, live_holder, load_run, lock_run_folder, resume_run,
+                         train_run)
 from jaxmac.runs import loop as run_loop
 
 CONFIG = scenario_config("boxpushing-6x6", tiny=True).override(
@@ -146,10 +147,15 @@ def test_a_lock_is_taken_over_when_its_holder_dies_and_is_reentrant_in_its_proce
         assert holder.stdout.readline().strip() == "locked"
         with pytest.raises(RunFolderBusy, match=f"in use by jaxmac train \\(pid {holder.pid} on host"):
             lock_run_folder(str(out))
+        assert live_holder(str(out))["pid"] == holder.pid  # what a sweep's dry run calls "running"
     finally:
         holder.send_signal(signal.SIGKILL)
         holder.wait()
     assert (out / LOCK_FILE).exists()  # the dead holder's file stays, and blocks nothing
+    assert live_holder(str(out)) is None
+    elsewhere = dict(json.loads((out / LOCK_FILE).read_text()), pid=os.getpid(), host="another-host")
+    (out / LOCK_FILE).write_text(json.dumps(elsewhere))
+    assert live_holder(str(out)) is None  # another host's process cannot be looked at from here
     with lock_run_folder(str(out)) as first:
         with lock_run_folder(str(out)):  # the same process again: a sweep's cell, then the run inside it
             pass

@@ -41,7 +41,7 @@ also the workers' entry point (``python -m jaxmac.runs.workers``), which must fi
 from jaxmac.runs.divergence import (OUT_OF_BOUNDS_COLUMN, VALUE_METRICS, WATCHED, check_finite, flag_out_of_bounds,
                                     out_of_bounds_message, value_bounds_of)
 from jaxmac.runs.folders import (LOCK_FILE, RUN_FILE_PATTERNS, RUN_FILES, FolderLock, RunFolderBusy, WriteFailed,
-                                 default_out_dir, is_finished, lock_holder, lock_run_folder, read_meta,
+                                 default_out_dir, is_finished, live_holder, lock_holder, lock_run_folder, read_meta,
                                  refuse_run_files, run_files, try_lock_run_folder, write_json_atomic)
 from jaxmac.runs.loop import (change_diverged_settings, extend_budget, finish_run, load_run, resume_run,
                               train_run)
@@ -55,8 +55,9 @@ __all__ = [
     "LOCK_FILE", "METRIC_COLUMNS", "OUT_OF_BOUNDS_COLUMN", "RUN_FILES", "RUN_FILE_PATTERNS", "VALUE_METRICS", "WATCHED",
     "FolderLock", "RunFolderBusy", "WriteFailed",
     "change_diverged_settings", "check_budget", "check_finite", "check_memory", "check_new_run", "default_out_dir",
-    "enable_compilation_cache", "extend_budget", "finish_run", "flag_out_of_bounds", "is_finished", "load_run",
-    "lock_holder", "lock_run_folder", "machine_memory", "memory_estimate", "metric_columns", "out_of_bounds_message",
+    "enable_compilation_cache", "extend_budget", "finish_run", "flag_out_of_bounds", "is_finished", "live_holder",
+    "load_run", "lock_holder", "lock_run_folder", "machine_memory", "memory_estimate", "metric_columns",
+    "out_of_bounds_message",
     "placed", "read_meta", "refuse_run_files", "resume_run", "run_files", "seed_sharding", "train_run",
     "try_lock_run_folder", "use_host_devices", "value_bounds_of", "write_json_atomic",
     *_WORKER_NAMES,

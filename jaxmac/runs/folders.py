@@ -90,6 +90,24 @@ def lock_holder(out_dir: str) -> dict | None:
         return None
 
 
+def live_holder(out_dir: str) -> dict | None:
+    """The holder of ``out_dir``'s lock if it is a live process on this host (its pid, host, command, since), else None.
+
+    Read without touching the lock: a probe that took it, however briefly, could make a starting ``jaxmac sweep``
+    process skip the cell. A lock file is removed when its holder lets go, so one left behind names a killed process;
+    its pid counts only while that process lives (a reused pid would read as alive: this is for messages only)."""
+    holder = lock_holder(out_dir)
+    if not holder or holder.get("host") != socket.gethostname() or not is_integer(holder.get("pid")):
+        return None
+    try:
+        os.kill(int(holder["pid"]), 0)
+    except ProcessLookupError:
+        return None
+    except PermissionError:  # alive, another user's
+        pass
+    return holder
+
+
 def _describe_holder(holder: dict | None) -> str:
     if not holder:
         return "a process that has not written its name yet"
