@@ -250,7 +250,7 @@ def cmd_sweep(args) -> int:
             if holder:  # its seeds' folder is a live process's now: say so rather than "interrupted"
                 status = f"running (pid {holder['pid']}, since {holder.get('since', '?')})"
             print(f"  {cell.path}: {cell.episodes} episodes per seed, {status}"
-                  + (f" at {trained}" if trained and not status.startswith("done") else "") + f", {cost}")
+                  + (f" at {trained}" if trained and status != "done" else "") + f", {cost}")
         for scenario, method, why in not_run_cells(args.experiment, args.protocol):
             print(f"  {scenario}/{method}: not run under this protocol: {why}")
         print(f"estimated {total / 3600:.1f} core-hours left at the measured rates of {args.rates}"
