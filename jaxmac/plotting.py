@@ -90,7 +90,7 @@ def plot_curves(curves: list[tuple[str, np.ndarray, np.ndarray]], png_path: str,
         ax.fill_between(episodes, mean - se, mean + se, alpha=0.25, color=line.get_color())
     if optimum is not None:
         ax.axhline(optimum, color="k", ls="--", lw=1, label=f"optimal ({optimum:.1f})")
-    ax.set_xlabel("training episodes")
+    label_episode_axis(ax)
     ax.set_ylabel(ylabel or return_label(discount))
     smoothing = f"{window}-point moving average" if window > 1 else "not smoothed"
     ax.set_title(f"{title}\nmean ± s.e. over seeds, {smoothing}", fontsize=9)
@@ -98,6 +98,15 @@ def plot_curves(curves: list[tuple[str, np.ndarray, np.ndarray]], png_path: str,
     ax.legend(loc="lower right", fontsize=8)
     fig.tight_layout()
     save_figure(fig, png_path, pdf)
+
+
+def label_episode_axis(ax) -> None:
+    """Name ``ax``'s x-axis "training episodes" and write its ticks in thousands ("40K"): six-digit tick labels of
+    the paper's 100K-episode budgets run into each other on a narrow panel."""
+    from matplotlib.ticker import FuncFormatter
+
+    ax.set_xlabel("training episodes")
+    ax.xaxis.set_major_formatter(FuncFormatter(lambda x, _: f"{x / 1000:g}K" if abs(x) >= 1000 else f"{x:g}"))
 
 
 def save_figure(fig, png_path: str, pdf: bool = False) -> None:

@@ -41,3 +41,15 @@ def test_plotting_keeps_the_global_backend(tmp_path):
     for name in ("curve.png", "strip.png"):
         with open(tmp_path / name, "rb") as f:
             assert f.read(8) == b"\x89PNG\r\n\x1a\n", name
+
+
+def test_episode_axis_ticks_are_written_in_thousands():
+    from matplotlib.figure import Figure
+
+    from jaxmac.plotting import label_episode_axis
+
+    ax = Figure().subplots()
+    label_episode_axis(ax)
+    tick = ax.xaxis.get_major_formatter()
+    assert [tick(x, 0) for x in (0, 500, 2500, 40000, 120000)] == ["0", "500", "2.5K", "40K", "120K"]
+    assert ax.get_xlabel() == "training episodes"

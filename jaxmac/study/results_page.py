@@ -28,7 +28,7 @@ import os
 
 import numpy as np
 
-from jaxmac.plotting import mean_and_standard_error, save_figure, smooth
+from jaxmac.plotting import label_episode_axis, mean_and_standard_error, save_figure, smooth
 from jaxmac.scenarios import CEILINGS, family
 from jaxmac.study.stats import (aggregate, compare_methods, episodes_to_fraction, load_progress, load_sweep,
                                 reach_summary, seed_range, seed_range_folders, welch_p, who_wins)
@@ -87,10 +87,15 @@ def experiment_figure(results, experiment: str, out_base: str, window: int = 10)
                 continue
             ax.plot(cell.episodes, mean, color=colour, label=label, lw=1.2)
             ax.fill_between(cell.episodes, mean - se, mean + se, color=colour, alpha=0.2)
-        if scenario in CEILINGS:
+        if not any((scenario, m.name) in results for m in methods):
+            ax.text(0.5, 0.5, "no finished cell yet", ha="center", va="center", transform=ax.transAxes,
+                    color="0.4", fontsize=9)
+            ax.set_xticks([])
+            ax.set_yticks([])
+        elif scenario in CEILINGS:
             ax.axhline(CEILINGS[scenario], color="k", ls="--", lw=1)
         ax.set_title(scenario, fontsize=10)
-        ax.set_xlabel("training episodes")
+        label_episode_axis(ax)
         ax.grid(alpha=0.3)
     axes[0][0].set_ylabel("evaluation return")
     handles = {h.get_label(): h for ax in axes[0] for h in ax.get_legend_handles_labels()[0]}
