@@ -56,9 +56,10 @@ def _tested(cells) -> bool:
     return all(_seeds(c) >= MIN_SEEDS for c in cells)
 
 
-def _has_finished_cell(results, experiment: str) -> bool:
+def _has_finished_cell(results, experiment: str, scenario: str | None = None) -> bool:
+    """Whether any method of ``experiment`` has a finished cell (on ``scenario`` only, when given)."""
     methods, scenarios = EXPERIMENTS[experiment]
-    return any((s, m.name) in results for s in scenarios for m in methods)
+    return any((s, m.name) in results for s in ([scenario] if scenario else scenarios) for m in methods)
 
 
 def experiment_figure(results, experiment: str, out_base: str, window: int = 10) -> bool:
@@ -87,7 +88,7 @@ def experiment_figure(results, experiment: str, out_base: str, window: int = 10)
                 continue
             ax.plot(cell.episodes, mean, color=colour, label=label, lw=1.2)
             ax.fill_between(cell.episodes, mean - se, mean + se, color=colour, alpha=0.2)
-        if not any((scenario, m.name) in results for m in methods):
+        if not _has_finished_cell(results, experiment, scenario):
             ax.text(0.5, 0.5, "no finished cell yet", ha="center", va="center", transform=ax.transAxes,
                     color="0.4", fontsize=9)
             ax.set_xticks([])
