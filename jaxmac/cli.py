@@ -354,7 +354,7 @@ def build_parser() -> argparse.ArgumentParser:
                                      "one folder, skipping finished cells and resuming interrupted ones")
     p.add_argument("experiment", choices=list(EXPERIMENTS))
     p.add_argument("--protocol", default="cpu", choices=list(PROTOCOLS),
-                   help="; ".join(f"{name}: {proto.about}" for name, proto in PROTOCOLS.items()))
+                   help="; ".join(f"{name}: {proto.about}" for name, proto in PROTOCOLS.items()).replace("%", "%%"))
     p.add_argument("--seeds", type=seed_range, default=None, metavar="N|A:B",
                    help="seeds of every cell instead of the protocol's count (A:B adds seeds A..B-1)")
     p.add_argument("--out", default=None, help="sweep folder (default: experiments/sweeps/PROTOCOL, shared by the "

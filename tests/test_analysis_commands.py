@@ -1,6 +1,6 @@
-"""``jaxmac calibrate``, ``jaxmac overlay`` and ``jaxmac qtot``: installed subcommands (jaxmac/study/calibrate.py,
-jaxmac/study/overlay.py, jaxmac/runs/qtot.py), each with its help; ``overlay`` draws run folders' and original runs'
-curves on one figure. (``calibrate``: tests/test_calibrate_protocol.py; ``qtot`` on a trained run:
+"""Every subcommand prints its help; ``jaxmac calibrate``, ``jaxmac overlay`` and ``jaxmac qtot`` are installed
+subcommands (jaxmac/study/calibrate.py, jaxmac/study/overlay.py, jaxmac/runs/qtot.py); ``overlay`` draws run folders'
+and original runs' curves on one figure. (``calibrate``: tests/test_calibrate_protocol.py; ``qtot`` on a trained run:
 tests/test_evaluate.py.)"""
 
 from __future__ import annotations
@@ -21,6 +21,21 @@ def test_each_command_has_its_help(command, says, capsys):
     assert exit_.value.code == 0
     out = capsys.readouterr().out
     assert out.startswith(f"usage: jaxmac {command}") and says in out
+
+
+def test_every_command_prints_its_help(capsys):
+    """argparse expands ``%`` in help texts: one unescaped ``%`` (e.g. "within 2 %") breaks that command's --help."""
+    import argparse
+
+    from jaxmac.cli import build_parser
+
+    subparsers = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
+    assert {"train", "sweep", "results"} <= set(subparsers.choices)
+    for command in subparsers.choices:
+        with pytest.raises(SystemExit) as exit_:
+            main([command, "--help"])
+        assert exit_.value.code == 0, command
+        assert capsys.readouterr().out.startswith(f"usage: jaxmac {command}"), command
 
 
 def _fake_run(path: pathlib.Path, returns_per_seed: list[list[float]]) -> pathlib.Path:
