@@ -49,17 +49,17 @@ PRESETS = {
     # the README's main command: ToMacVF's curve climbing on Box Pushing 6x6 in a few minutes on a 2-core CPU
     "quickstart": Preset(
         "boxpushing-6x6", "tomacvf",
-        dict(episodes=2000, batch_size=32, updates_per_round=4, overestimate_weight=0.3, eps_decay_episodes=1000,
+        dict(episodes=2048, batch_size=32, updates_per_round=4, overestimate_weight=0.3, eps_decay_episodes=1000,
              eval_every_episodes=50),
         seeds=2,
-        about="ToMacVF on Box Pushing 6x6, 2,000 episodes: batch 32 (paper 128), 4 gradient steps per round of 16 "
+        about="ToMacVF on Box Pushing 6x6, 2,048 episodes: batch 32 (paper 128), 4 gradient steps per round of 16 "
               "episodes (paper 1), optimistic weighting 0.3 (paper: plain MSE), epsilon decayed over 1,000 episodes "
               "(paper 4,000)"),
     # the README's result on Box Pushing 6x6 (mean 263.8 of 270.6 over 8 seeds)
     "boxpushing-6x6-solved": Preset(
-        "boxpushing-6x6", "tomacvf", dict(episodes=6400, updates_per_round=4, overestimate_weight=0.3), seeds=8,
+        "boxpushing-6x6", "tomacvf", dict(episodes=6496, updates_per_round=4, overestimate_weight=0.3), seeds=8,
         about="ToMacVF on Box Pushing 6x6 with the paper's settings but 4 gradient steps per round and optimistic "
-              "weighting 0.3, 6,400 episodes"),
+              "weighting 0.3, 6,496 episodes"),
 }
 
 

@@ -12,6 +12,7 @@ import pytest
 from jaxmac.presets import scenario_config
 from jaxmac.runs import check_finite, resume_run, train_run
 from jaxmac.runs import loop as run_loop
+from jaxmac.trainer import default_rounds_per_chunk
 
 CONFIG = scenario_config("boxpushing-6x6", "maccen_ddrqn", tiny=True).override(horizon=20, episodes=48, num_envs=8)
 
@@ -45,6 +46,28 @@ def test_every_reported_metric_is_a_column(finished):
     trained = [r for r in rows if float(r["round_updates"]) > 0]
     assert trained and all(np.isfinite(float(r["cen_loss"])) for r in trained)
     assert summary["algorithm"] == "maccen_ddrqn"
+
+
+def test_a_run_trains_its_budget_rounded_up_to_a_round_only_and_says_so(tmp_path, capsys):
+    """44 episodes at 8 a round: 6 rounds, said on stderr; the chunk (about one evaluation period, 4 rounds) is the
+    divisor of 6 nearest it, 3, so the run ends at 48 episodes, not at two whole chunks of 4 rounds (64)."""
+    config = CONFIG.override(episodes=44)
+    assert default_rounds_per_chunk(config) == 3 and config.eval_every_episodes == 4 * config.num_envs
+    summary = train_run(config, 1, str(tmp_path / "exact"), progress=False)
+    assert "episodes=44 is not a multiple of num_envs=8" in capsys.readouterr().err
+    assert summary["episodes"] == 48
+    with open(tmp_path / "exact" / "metrics.csv", newline="") as f:
+        assert [int(r["episodes"]) for r in csv.DictReader(f)] == [8, 16, 24, 32, 40, 48]
+
+
+def test_a_budget_that_ends_inside_a_chunk_is_refused_naming_the_budgets_that_do_not(finished, tmp_path):
+    out, _ = finished  # chunks of 2 rounds x 8 episodes
+    with pytest.raises(ValueError, match="episodes=56 ends inside a chunk.*Give episodes=48 or 64"):
+        resume_run(str(out), progress=False, episodes=56)
+    assert json.loads((out / "config.json").read_text())["config"]["episodes"] == 48  # nothing changed
+    with pytest.raises(ValueError, match="episodes=48 ends inside a chunk.*Give episodes=32 or 64"):
+        train_run(CONFIG, 1, str(tmp_path / "chunks-of-4"), rounds_per_chunk=4, progress=False)
+    assert not (tmp_path / "chunks-of-4").exists()
 
 
 def test_a_diverging_run_stops_and_continues_with_other_settings(tmp_path, monkeypatch):

@@ -180,7 +180,7 @@ def test_a_stream_turned_on_at_resume_starts_with_the_rows_trained_so_far(tmp_pa
     assert read_meta(str(out))["log"] == "tensorboard"
     assert read_scalars(out) == reference[1]
     # and off again: the run's config.json no longer names a logger
-    assert main(["train", "--resume", str(out), "--log", "none", "--episodes", "56", "--no-progress"]) == 0
+    assert main(["train", "--resume", str(out), "--log", "none", "--episodes", "64", "--no-progress"]) == 0
     assert "log" not in read_meta(str(out)) and read_scalars(out) == reference[1]
 
 
@@ -201,13 +201,13 @@ def test_each_worker_logs_its_seeds_to_its_own_stream(tmp_path, monkeypatch):
         assert {tag.split("/")[0] for tag, _ in scalars} == seeds | {"mean"}
     assert not _event_files(out)  # the merged folder: the curve and metrics.csv, no stream of its own
     # --resume --log none: every folder's record of it changes; the streams stay as they were
-    run_workers.resume_workers(str(out), progress=False, episodes=56, log="none")
+    run_workers.resume_workers(str(out), progress=False, episodes=64, log="none")
     for folder in (out, out / "worker0", out / "worker1"):
         assert "log" not in read_meta(str(folder))
     for k in (0, 1):
         assert "log" not in json.loads((out / f"worker{k}" / "job.json").read_text())
         assert max(step for _, step in read_scalars(out / f"worker{k}")) == 48
-        assert expected_scalars(out / f"worker{k}" / "metrics.csv")[(f"seed{2 * k}/epsilon", 56)] >= 0
+        assert expected_scalars(out / f"worker{k}" / "metrics.csv")[(f"seed{2 * k}/epsilon", 64)] >= 0
 
 
 # --- W&B (a fake wandb module) --------------------------------------------------------------------------------------

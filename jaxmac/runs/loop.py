@@ -9,6 +9,7 @@ from __future__ import annotations
 import json
 import os
 import shutil
+import sys
 import time
 from typing import Any
 
@@ -55,7 +56,8 @@ from jaxmac.runs.loggers import (
 )
 from jaxmac.runs.metrics_csv import append_chunks, cut_metrics
 from jaxmac.runs.programs import programs_for
-from jaxmac.runs.resources import abstract_state, check_budget, check_memory, placed, seed_sharding
+from jaxmac.runs.resources import (abstract_state, check_budget, check_memory, check_whole_chunks, placed,
+                                   rounded_budget_notice, seed_sharding)
 from jaxmac.scenarios import OPTIMAL_DISC_RETURN
 
 # --- training, resuming, finishing ----------------------------------------------------------------------------------
@@ -87,6 +89,11 @@ def train_run(
         raise ValueError(f"seeds={seeds!r} must be >= 1")
     sharding = seed_sharding(seeds, devices)
     check_budget(config)
+    if rounds_per_chunk is not None:  # the default divides the run's rounds
+        check_whole_chunks(config, rounds_per_chunk)
+    notice = rounded_budget_notice(config)
+    if notice:
+        print(f"jaxmac: {notice}", file=sys.stderr)
     created = not os.path.exists(out_dir)
     with lock_run_folder(out_dir, "train"):
         try:
@@ -165,7 +172,10 @@ def extended_meta(out_dir: str, meta: dict, episodes: int) -> dict:
     if isinstance(episodes, bool) or not isinstance(episodes, int) or episodes < current:
         raise ValueError(f"episodes={episodes!r}: a run can only be extended; {out_dir} already has a budget of "
                          f"{current} episodes per seed (give an integer >= {current})")
-    return dict(meta, config=TrainConfig.from_dict(meta["config"]).override(episodes=episodes).to_dict())
+    config = TrainConfig.from_dict(meta["config"]).override(episodes=episodes)
+    if "rounds_per_chunk" in meta:  # a run of one process (workers' runs are extended folder by folder)
+        check_whole_chunks(config, meta["rounds_per_chunk"])
+    return dict(meta, config=config.to_dict())
 
 
 def extend_budget(out_dir: str, episodes: int) -> None:

@@ -89,6 +89,28 @@ def check_budget(config: TrainConfig) -> None:
                          f"{config.episodes}, or raise episodes")
 
 
+def rounded_budget_notice(config: TrainConfig) -> str | None:
+    """What a run trains when its budget is not a whole number of rounds (``num_envs`` episodes per seed each): the
+    last round is collected whole. ``None`` when it is."""
+    if config.episodes % config.num_envs == 0:
+        return None
+    rounds = -(-config.episodes // config.num_envs)
+    return (f"episodes={config.episodes} is not a multiple of num_envs={config.num_envs} (the episodes of one round per "
+            f"seed): the run trains {rounds} rounds, {rounds * config.num_envs} episodes per seed")
+
+
+def check_whole_chunks(config: TrainConfig, rounds_per_chunk: int) -> None:
+    """A run trains whole chunks of ``rounds_per_chunk`` rounds: a budget (raised on a resume) that ends inside one
+    would be overrun, so it is refused, naming the budgets around it that end on a chunk."""
+    unit = rounds_per_chunk * config.num_envs
+    rounds = -(-config.episodes // config.num_envs)
+    if rounds % rounds_per_chunk:
+        below, above = config.episodes // unit * unit, (config.episodes // unit + 1) * unit
+        raise ValueError(f"episodes={config.episodes} ends inside a chunk: this run trains chunks of {rounds_per_chunk} "
+                         f"rounds x num_envs={config.num_envs} = {unit} episodes per seed, so it would train "
+                         f"{above}. Give episodes={below} or {above}")
+
+
 def _nbytes(tree) -> float:
     def itemsize(dtype) -> int:
         try:
