@@ -8,6 +8,8 @@ import json
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from jaxmac.presets import scenario_config
 from jaxmac.runs import check_finite, resume_run, train_run
@@ -58,6 +60,20 @@ def test_a_run_trains_its_budget_rounded_up_to_a_round_only_and_says_so(tmp_path
     assert summary["episodes"] == 48
     with open(tmp_path / "exact" / "metrics.csv", newline="") as f:
         assert [int(r["episodes"]) for r in csv.DictReader(f)] == [8, 16, 24, 32, 40, 48]
+
+
+@settings(max_examples=200, deadline=None)
+@given(episodes=st.integers(1, 200_000), num_envs=st.integers(1, 64), eval_every=st.integers(1, 5_000))
+def test_the_default_chunk_divides_the_rounds_near_one_evaluation_period(episodes, num_envs, eval_every):
+    config = CONFIG.override(episodes=max(episodes, num_envs), num_envs=num_envs, buffer_episodes=max(64, num_envs),
+                             eval_every_episodes=eval_every)
+    rounds = -(-config.episodes // num_envs)
+    period = min(rounds, max(1, -(-max(eval_every, num_envs) // num_envs)))  # one evaluation period, in rounds
+    chunk = default_rounds_per_chunk(config)
+    assert rounds % chunk == 0 and 1 <= chunk <= 2 * period
+    # no divisor of the rounds within twice the period is nearer to it (ratio-wise)
+    distance = abs(np.log(chunk / period))
+    assert not [n for n in range(1, 2 * period + 1) if rounds % n == 0 and abs(np.log(n / period)) < distance - 1e-12]
 
 
 def test_a_budget_that_ends_inside_a_chunk_is_refused_naming_the_budgets_that_do_not(finished, tmp_path):
