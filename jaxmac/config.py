@@ -198,6 +198,11 @@ class TrainConfig:
         shared, block = _route(algorithm, values)
         return cls(algorithm=algorithm, algo=settings_class(algorithm)(**block), **shared)
 
+    @property
+    def rounds(self) -> int:
+        """Rounds the run trains: ``episodes`` in rounds of ``num_envs`` episodes per seed, the last one whole."""
+        return -(-self.episodes // self.num_envs)
+
     def override(self, **values: Any) -> "TrainConfig":
         """A validated copy with ``values`` replaced: shared fields and fields of this algorithm's block (names
         and types checked). Changing ``algorithm`` starts from the new algorithm's default block."""

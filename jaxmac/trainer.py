@@ -84,7 +84,7 @@ def default_rounds_per_chunk(config: TrainConfig) -> int:
     """The rounds one compiled chunk runs: about one evaluation period (``eval_every_episodes``), as a divisor of the
     run's rounds (the one nearest that period, at most twice it) so that the last chunk ends exactly at the budget: a
     chunk always runs all its rounds."""
-    total_rounds = math.ceil(config.episodes / config.num_envs)
+    total_rounds = config.rounds
     target = max(1, min(total_rounds, math.ceil(max(config.eval_every_episodes, config.num_envs) / config.num_envs)))
     divisors = [n for n in range(1, min(2 * target, total_rounds) + 1) if total_rounds % n == 0]
     return min(divisors, key=lambda n: (abs(math.log(n / target)), n))
@@ -98,7 +98,7 @@ def make_train(
     E = config.num_envs
     if E > config.buffer_episodes:
         raise ValueError(f"num_envs={E} must be <= buffer_episodes={config.buffer_episodes}")
-    total_rounds = math.ceil(config.episodes / E)
+    total_rounds = config.rounds
     if rounds_per_chunk is None:
         rounds_per_chunk = default_rounds_per_chunk(config)
     if not isinstance(rounds_per_chunk, int) or rounds_per_chunk < 1:

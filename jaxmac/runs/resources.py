@@ -94,21 +94,19 @@ def rounded_budget_notice(config: TrainConfig) -> str | None:
     last round is collected whole. ``None`` when it is."""
     if config.episodes % config.num_envs == 0:
         return None
-    rounds = -(-config.episodes // config.num_envs)
     return (f"episodes={config.episodes} is not a multiple of num_envs={config.num_envs} (the episodes of one round per "
-            f"seed): the run trains {rounds} rounds, {rounds * config.num_envs} episodes per seed")
+            f"seed): the run trains {config.rounds} rounds, {config.rounds * config.num_envs} episodes per seed")
 
 
 def check_whole_chunks(config: TrainConfig, rounds_per_chunk: int) -> None:
     """A run trains whole chunks of ``rounds_per_chunk`` rounds: a budget (raised on a resume) that ends inside one
     would be overrun, so it is refused, naming the budgets around it that end on a chunk."""
     unit = rounds_per_chunk * config.num_envs
-    rounds = -(-config.episodes // config.num_envs)
-    if rounds % rounds_per_chunk:
+    if config.rounds % rounds_per_chunk:
         below, above = config.episodes // unit * unit, (config.episodes // unit + 1) * unit
         raise ValueError(f"episodes={config.episodes} ends inside a chunk: this run trains chunks of {rounds_per_chunk} "
                          f"rounds x num_envs={config.num_envs} = {unit} episodes per seed, so it would train "
-                         f"{above}. Give episodes={below} or {above}")
+                         f"{above}. Give episodes=" + (f"{below} or {above}" if below else f"{above}"))
 
 
 def _nbytes(tree) -> float:
