@@ -51,7 +51,10 @@ def test_cells_a_protocol_leaves_out_are_listed_with_the_reason(tmp_path):
     assert ("- ToMacVF, 2 scenarios with baselines finished: best mean on 1 (overcooked-A); not told apart from the best "
             "on 0; below the best, told apart, on 1 (overcooked-B (Mac-IAICC)).") in page
     assert "| Mac-Cen-DDRQN | not run: a step over 64 episodes" in page  # the folder name is the protocol
-    assert "| Mac-IAICC | not finished yet |" in page.split("**overcooked-A**")[1]
+    # a cell the protocol plans that no run has begun: its budget (the cpu protocol's 4 seeds x 2,000 episodes)
+    assert "| Mac-IAICC | not started: 4 seeds × 2,000 episodes |" in page.split("**overcooked-A**")[1]
+    assert "**Not started: 11 cells** the protocol plans (their costs need measured rates" in page
+    assert "| overcooked | overcooked-C/mac_iaicc/seeds0-4 | 4 × 2,000 | no rates given |" in page
     assert "| overcooked | overcooked-A | **155.0 (94 %)** | … | 25.0 (15 %) | … | … | n.r. | n.r. | n.r. |" in page
 
 
@@ -110,7 +113,9 @@ def test_a_one_seed_sweep_names_no_winner_and_says_why(tmp_path, monkeypatch):
     assert "**Protocol: smoke** (the sweep folder's name): 1 seed, 32 episodes, tiny networks" in head
     assert "**Finished cells: 8** of the 109 this protocol plans" in head
     assert "**seeds per cell: 1**; episodes per seed: 96 on every cell." in head
-    assert "Not run (no finished cell): bp." in head and "## bp" not in page and "| bp |" not in page
+    assert "Not run (no finished cell): bp." in head and "## bp" not in page
+    assert "| bp |" not in page.split("## Cells not started")[0]  # no headline row; its cells in the closing table:
+    assert "| bp | boxpushing-6x6/mac_cac/seeds0-1 | 1 × 32 | no rates given |" in page.split("## Cells not started")[1]
     assert "every finished cell has fewer than 2 seeds" in head
     assert "a winner, an interval and a test need at least 2 seeds per method" in head
     # no winner, no test, no interval, no bold "best" anywhere; one reason per scenario instead
@@ -217,3 +222,25 @@ def test_cells_that_ended_early_or_are_still_running_say_how_far_they_got(tmp_pa
     # a cell that has not logged an episode yet, on a map no method finished, with no measured rate
     assert "- overcooked-C/mac_cac: 0 of 100 episodes per seed (seeds 0–1)\n" in page
     assert "| Mac-CAC | not finished yet: 0 of 100 episodes per seed (seeds 0–1) |" in page.split("**overcooked-C**")[1]
+    # cells no run has begun: their cost at the measured rate of the nearest map (4 seeds x 100K / 0.08 per s), or why
+    # there is none; the header counts them, a closing table lists them
+    overcooked_c = page.split("**overcooked-C**")[1]
+    assert ("| ToMacVF | not started: 4 seeds × 100,000 episodes, ~1389 core-hours at the rate measured for "
+            "tomacvf@overcooked-B |") in overcooked_c
+    assert "| Mac-NIACC | not started: 4 seeds × 100,000 episodes, no rate measured for mac_niacc |" in overcooked_c
+    assert ("**Not started: 9 cells** the protocol plans (~2778 core-hours at the measured rates, 7 cells without a "
+            "measured rate not counted;") in page.split("## Headline")[0]
+    closing = page.split("## Cells not started")[1]
+    assert "| overcooked | overcooked-A/tomacvf/seeds0-4 | 4 × 100,000 | ~1389 core-hours at the rate" in closing
+    assert "overcooked-B/tomacvf/" not in closing and "overcooked-C/mac_cac/" not in closing  # finished or begun
+
+
+def test_a_scenario_the_protocol_leaves_out_says_so_instead_of_waiting(tmp_path):
+    # the full protocol runs the ablation on Overcooked-B only: warehouse-E is not "not finished yet" but not run
+    sweep = tmp_path / "full"
+    _fake_run(sweep / "overcooked-B" / "tomacvf" / "seeds0-2", 0, [140.0, 150.0])
+    page = pathlib.Path(write_page(str(sweep), str(tmp_path / "out"), ["ablation"])).read_text()
+    ablation = page.split("## ablation")[1].split("## Cells not started")[0]
+    assert "Not run on warehouse-E under this protocol: ablation on Overcooked-B only in this protocol." in ablation
+    assert "No method has finished on warehouse-E" not in page
+    assert "| ToMacVF w/o ATPG | not started: 4 seeds × 120,000 episodes |" in ablation

@@ -17,8 +17,9 @@ ceiling-normalised final returns and ToMacVF's probability of improvement over e
 
 Fewer than 2 seeds decide nothing: a scenario where a finished cell has one seed gets no interval, no p-value and
 no "who wins" line, a question is answered only from cells of at least 2 seeds each, aggregates need 2 seeds per
-cell, and the page says why (``NO_TEST_WHY``). Cells not finished are listed as "not finished yet", or "not run"
-with the reason where the protocol leaves them out.
+cell, and the page says why (``NO_TEST_WHY``). Cells not finished are listed as "not finished yet" (how far they
+ran, what they still cost), "not started" (a cell the protocol plans that no run has begun: its budget and estimated
+cost, also in the closing "Cells not started" table), or "not run" with the reason where the protocol leaves them out.
 """
 
 from __future__ import annotations
@@ -32,7 +33,7 @@ from jaxmac.plotting import label_episode_axis, mean_and_standard_error, save_fi
 from jaxmac.scenarios import CEILINGS, family
 from jaxmac.study.stats import (aggregate, compare_methods, episodes_to_fraction, load_progress, load_sweep,
                                 reach_summary, seed_range, seed_range_folders, welch_p, who_wins)
-from jaxmac.study.sweep import EXPERIMENTS, PROTOCOLS, Cell, estimate_seconds, method_by_name
+from jaxmac.study.sweep import EXPERIMENTS, PROTOCOLS, Cell, estimate_seconds, method_by_name, protocol_cell
 
 REFERENCE = "tomacvf"
 MIN_SEEDS = 2  # the fewest seeds per method for an interval, Welch's test and a winner
@@ -116,6 +117,15 @@ def _not_run_reason(protocol: str | None, method: str, scenario: str) -> str | N
     return PROTOCOLS[protocol].not_run_reason(method, scenario) if protocol in PROTOCOLS else None
 
 
+def _left_out_reason(protocol: str | None, methods, scenario: str) -> str | None:
+    """The protocol's reason (its first clause) where it leaves out every method of an experiment on ``scenario`` but
+    ToMacVF (whose cell belongs to the comparison with the baselines), else None."""
+    reasons = [_not_run_reason(protocol, m.name, scenario) for m in methods if m.name != REFERENCE]
+    if not reasons or not all(reasons):
+        return None
+    return reasons[0].split(":")[0]
+
+
 def _few_seeds_sentence(cells, labels: dict[str, str]) -> str:
     """Why a scenario with a cell of fewer than 2 seeds gets no winner, interval or test."""
     few = [c for c in cells if _seeds(c) < MIN_SEEDS]
@@ -158,18 +168,77 @@ def progress_text(ranges, scenario: str, method: str, rates: dict | None) -> str
     estimate = estimate_seconds(Cell("", method_obj, scenario, 0, 1, left), rates or {})
     if estimate is not None:
         seconds, measured = estimate
-        hours = seconds / 3600
-        text += f"; ~{hours:.1f}" if hours < 10 else f"; ~{hours:.0f}"
-        text += f" core-hours left at the rate measured for {measured}"
+        text += f"; {_hours_text(seconds)} left at the rate measured for {measured}"
     return text
+
+
+def _hours_text(seconds: float) -> str:
+    """"~5.3 core-hours" (whole hours from 10 on)."""
+    hours = seconds / 3600
+    return (f"~{hours:.1f}" if hours < 10 else f"~{hours:.0f}") + " core-hours"
+
+
+def not_started_cells(experiments: list[str], protocol: str | None, results, progress) -> list[Cell]:
+    """The cells ``protocol`` plans for ``experiments`` that no run has begun (no finished seeds, no run folder), in
+    the plan's order, each once (the mixers' QMIX cell is the comparison's ToMacVF cell); [] for an unknown
+    protocol."""
+    from jaxmac.study.sweep import plan
+
+    if protocol not in PROTOCOLS:
+        return []
+    cells, seen = [], set()
+    for experiment in experiments:
+        for cell in plan(experiment, protocol):
+            key = (cell.scenario, cell.method.name)
+            if key not in seen and key not in results and key not in (progress or {}):
+                seen.add(key)
+                cells.append(cell)
+    return cells
+
+
+def cost_text(cell: Cell, rates: dict | None) -> str:
+    """What a cell not started costs: "~5.0 core-hours at the rate measured for tomacvf@warehouse-A", or "no rate
+    measured for this method" (``jaxmac calibrate`` measures one), or "no rates given"."""
+    if rates is None:
+        return "no rates given"
+    estimate = estimate_seconds(cell, rates)
+    if estimate is None:
+        return f"no rate measured for {cell.method.name}"
+    seconds, measured = estimate
+    return f"{_hours_text(seconds)} at the rate measured for {measured}"
+
+
+def not_started_section(cells: list[Cell], protocol: str, rates: dict | None) -> list[str]:
+    """One table of the cells no run has begun, each with its budget and estimated cost, and their total."""
+    if not cells:
+        return []
+    lines = ["## Cells not started", "",
+             f"The cells the protocol plans that no run has begun, with what each costs on one core at the training "
+             f"rates measured here (`jaxmac sweep EXPERIMENT --protocol {protocol}` runs them, `--dry-run` lists "
+             "them):", "",
+             "| experiment | cell | seeds × episodes per seed | estimated cost |", "|---|---|---|---|"]
+    lines += [f"| {cell.experiment} | {cell.path} | {cell.seeds} × {cell.episodes:,} | {cost_text(cell, rates)} |"
+              for cell in cells]
+    return lines + ["", f"In all {_not_started_total(cells, rates)}.", ""]
+
+
+def _not_started_total(cells: list[Cell], rates: dict | None) -> str:
+    """"~131.2 core-hours at the measured rates" (and how many cells had no rate to count)."""
+    if rates is None:
+        return "their costs need measured rates (`jaxmac results --rates`)"
+    estimates = [estimate_seconds(cell, rates) for cell in cells]
+    total = sum(e[0] for e in estimates if e is not None)
+    unknown = sum(e is None for e in estimates)
+    text = f"{_hours_text(total)} at the measured rates"
+    return text + (f", {unknown} cells without a measured rate not counted" if unknown else "")
 
 
 def scenario_table(results, experiment: str, scenario: str, protocol: str | None = None, progress=None,
                    rates: dict | None = None) -> list[str]:
     """The scenario's table: one row per finished cell (seeds, episodes per seed, final return, its interval, the
     fraction of the ceiling, the episodes to 90 % of the ceiling, Welch's p against ToMacVF, wall time), then the
-    cells not finished: how far they ran and what they still cost (``progress``: ``stats.load_progress``), or why
-    the protocol leaves them out."""
+    cells not finished: how far they ran and what they still cost (``progress``: ``stats.load_progress``), what a
+    cell the protocol plans but no run has begun costs, or why the protocol leaves them out."""
     methods, _ = EXPERIMENTS[experiment]
     progress = progress or {}
     cells = [results[(scenario, m.name)] for m in methods if (scenario, m.name) in results]
@@ -206,6 +275,10 @@ def scenario_table(results, experiment: str, scenario: str, protocol: str | None
                 status = f"not run: {why}"
             elif ranges:
                 status = f"not finished yet: {progress_text(ranges, scenario, m.name, rates)}"
+            elif protocol in PROTOCOLS:
+                cell = protocol_cell(experiment, protocol, m, scenario, 0, PROTOCOLS[protocol].seeds)
+                status = f"not started: {cell.seeds} seeds × {cell.episodes:,} episodes"
+                status += f", {cost_text(cell, rates)}" if rates is not None else ""
             else:
                 status = "not finished yet"
             lines.append(f"| {labels[m.name]} | {status} | | | | | | | |")
@@ -489,6 +562,10 @@ def header_lines(sweep_dir: str, results, experiments: list[str], protocol: str 
     not_run = [e for e in experiments if not _has_finished_cell(results, e)]
     if not_run:
         lines += [f"Not run (no finished cell): {', '.join(not_run)}.", ""]
+    not_started = not_started_cells(experiments, protocol, results, progress)
+    if not_started:
+        lines += [f"**Not started: {len(not_started)} cells** the protocol plans ({_not_started_total(not_started, rates)}"
+                  "; each with its cost under [Cells not started](#cells-not-started)).", ""]
     few = [c for c in cells if _seeds(c) < MIN_SEEDS]
     if few:
         share = "every finished cell has" if len(few) == len(cells) else f"{len(few)} of {len(cells)} cells have"
@@ -545,9 +622,14 @@ def write_page(sweep_dir: str, out_dir: str, experiments: list[str], protocol: s
         for scenario in scenarios:
             if scenario not in idle:
                 lines += scenario_table(results, experiment, scenario, protocol, progress, rates)
+        left_out = {s: why for s in idle if (why := _left_out_reason(protocol, methods, s))}
+        idle = [s for s in idle if s not in left_out]
         if idle:
             lines += [f"No method has finished on {', '.join(idle)} yet.", ""]
+        for s, why in left_out.items():
+            lines += [f"Not run on {s} under this protocol: {why}.", ""]
         lines += aggregate_lines(results, experiment, protocol)
+    lines += not_started_section(not_started_cells(experiments, protocol, results, progress), protocol, rates)
     path = os.path.join(out_dir, "RESULTS.md")
     with open(path, "w") as f:
         f.write("\n".join(lines))
