@@ -86,6 +86,20 @@ def test_a_budget_that_ends_inside_a_chunk_is_refused_naming_the_budgets_that_do
     assert not (tmp_path / "chunks-of-4").exists()
 
 
+def test_a_raised_budget_of_partial_rounds_is_said_as_a_new_run_says_it(finished, tmp_path, capsys):
+    import shutil
+
+    from jaxmac.runs import extend_budget
+
+    out = tmp_path / "copy"
+    shutil.copytree(finished[0], out)  # chunks of 2 rounds x 8 episodes: 60 ends on one (8 rounds, 64 episodes)
+    extend_budget(str(out), 60)
+    assert "episodes=60 is not a multiple of num_envs=8" in capsys.readouterr().err
+    assert json.loads((out / "config.json").read_text())["config"]["episodes"] == 60
+    extend_budget(str(out), 64)  # whole rounds: nothing to say
+    assert capsys.readouterr().err == ""
+
+
 def test_a_diverging_run_stops_and_continues_with_other_settings(tmp_path, monkeypatch):
     out = tmp_path / "div"
     calls = {"n": 0}

@@ -178,13 +178,17 @@ def extended_meta(out_dir: str, meta: dict, episodes: int) -> dict:
     return dict(meta, config=config.to_dict())
 
 
-def extend_budget(out_dir: str, episodes: int) -> None:
+def extend_budget(out_dir: str, episodes: int, say: bool = True) -> None:
     """Raise the training budget of the run in ``out_dir`` to ``episodes`` per seed (its config.json,
     rewritten atomically). Nothing else of the config changes — the ε schedule counts episodes from
-    the start — so resuming afterwards ends exactly where a run started with that budget would."""
+    the start — so resuming afterwards ends exactly where a run started with that budget would. A budget of partial
+    rounds is said on stderr (``say``), as a new run says it."""
     with lock_run_folder(out_dir, "train --episodes") if os.path.isdir(out_dir) else _no_lock():
-        meta = read_meta(out_dir)
-        write_json_atomic(os.path.join(out_dir, "config.json"), extended_meta(out_dir, meta, episodes))
+        meta = extended_meta(out_dir, read_meta(out_dir), episodes)
+        write_json_atomic(os.path.join(out_dir, "config.json"), meta)
+    notice = rounded_budget_notice(TrainConfig.from_dict(meta["config"]))
+    if notice and say:
+        print(f"jaxmac: {notice}", file=sys.stderr)
 
 
 class _no_lock:
