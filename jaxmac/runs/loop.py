@@ -9,7 +9,6 @@ from __future__ import annotations
 import json
 import os
 import shutil
-import sys
 import time
 from typing import Any
 
@@ -57,7 +56,7 @@ from jaxmac.runs.loggers import (
 from jaxmac.runs.metrics_csv import append_chunks, cut_metrics
 from jaxmac.runs.programs import programs_for
 from jaxmac.runs.resources import (abstract_state, check_budget, check_memory, check_whole_chunks, placed,
-                                   rounded_budget_notice, seed_sharding)
+                                   say_rounded_budget, seed_sharding)
 from jaxmac.scenarios import OPTIMAL_DISC_RETURN
 
 # --- training, resuming, finishing ----------------------------------------------------------------------------------
@@ -91,9 +90,7 @@ def train_run(
     check_budget(config)
     if rounds_per_chunk is not None:  # the default divides the run's rounds
         check_whole_chunks(config, rounds_per_chunk)
-    notice = rounded_budget_notice(config)
-    if notice:
-        print(f"jaxmac: {notice}", file=sys.stderr)
+    say_rounded_budget(config)
     created = not os.path.exists(out_dir)
     with lock_run_folder(out_dir, "train"):
         try:
@@ -186,9 +183,8 @@ def extend_budget(out_dir: str, episodes: int, say: bool = True) -> None:
     with lock_run_folder(out_dir, "train --episodes") if os.path.isdir(out_dir) else _no_lock():
         meta = extended_meta(out_dir, read_meta(out_dir), episodes)
         write_json_atomic(os.path.join(out_dir, "config.json"), meta)
-    notice = rounded_budget_notice(TrainConfig.from_dict(meta["config"]))
-    if notice and say:
-        print(f"jaxmac: {notice}", file=sys.stderr)
+    if say:
+        say_rounded_budget(TrainConfig.from_dict(meta["config"]))
 
 
 class _no_lock:

@@ -5,6 +5,7 @@ devices, and the budget and memory checks done before anything compiles.
 from __future__ import annotations
 
 import os
+import sys
 
 import jax
 import jax.numpy as jnp
@@ -96,6 +97,13 @@ def rounded_budget_notice(config: TrainConfig) -> str | None:
         return None
     return (f"episodes={config.episodes} is not a multiple of num_envs={config.num_envs} (the episodes of one round per "
             f"seed): the run trains {config.rounds} rounds, {config.rounds * config.num_envs} episodes per seed")
+
+
+def say_rounded_budget(config: TrainConfig) -> None:
+    """Print ``rounded_budget_notice`` on stderr where there is one (a new run's start, a raised budget)."""
+    notice = rounded_budget_notice(config)
+    if notice:
+        print(f"jaxmac: {notice}", file=sys.stderr)
 
 
 def check_whole_chunks(config: TrainConfig, rounds_per_chunk: int) -> None:

@@ -21,7 +21,7 @@ from jaxmac.runs.folders import lock_run_folder, read_meta, refuse_run_files, wr
 from jaxmac.runs.loggers import check_new_stream, log_choice, require, with_logger
 from jaxmac.runs.loop import extend_budget, extended_meta
 from jaxmac.runs.metrics_csv import episodes_per_seed
-from jaxmac.runs.resources import check_new_run, rounded_budget_notice
+from jaxmac.runs.resources import check_new_run, say_rounded_budget
 
 
 def split_seeds(seeds: int, workers: int) -> list[tuple[int, int]]:
@@ -84,9 +84,7 @@ def resume_workers(out_dir: str, progress: bool = True, episodes: int | None = N
                     extended_meta(d, read_meta(d), episodes)
             write_json_atomic(os.path.join(out_dir, "config.json"), extended)
             meta = extended
-            notice = rounded_budget_notice(TrainConfig.from_dict(meta["config"]))
-            if notice:  # once for the run, not once per worker
-                print(f"jaxmac: {notice}", file=sys.stderr)
+            say_rounded_budget(TrainConfig.from_dict(meta["config"]))  # once for the run, not once per worker
             for d in jobs:
                 if os.path.exists(os.path.join(d, "config.json")):
                     extend_budget(d, episodes, say=False)
