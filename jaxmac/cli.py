@@ -208,7 +208,7 @@ def seed_range(text: str) -> tuple[int, int]:
 def cmd_sweep(args) -> int:
     from jaxmac.runs import enable_compilation_cache, live_holder, use_host_devices
     from jaxmac.runs.resources import default_devices, fit_devices
-    from jaxmac.study.stats import trained_episodes
+    from jaxmac.study.stats import own_rate, trained_episodes
     from jaxmac.study.sweep import (PROTOCOLS, cell_status, estimate_seconds, fit_to_existing, load_rates,
                                     not_run_cells, plan, run_sweep)
 
@@ -233,11 +233,16 @@ def cmd_sweep(args) -> int:
           f"into {out}" + (f", each cell's seeds sharded over {devices} devices" if devices > 1 else ""))
     if args.dry_run:
         rates = load_rates(args.rates)
-        total, unknown = 0.0, 0
+        total, unknown, own = 0.0, 0, 0
         for cell in cells:
             status = cell_status(out, cell)
             trained = trained_episodes(os.path.join(out, cell.path), cell.seeds) if status != "new" else 0
-            estimate = estimate_seconds(cell, rates, cell.episodes - trained)
+            rate = own_rate(os.path.join(out, cell.path)) if status != "new" else None
+            if rate is not None:  # a started cell's own pace beats another scenario's
+                own += status != "done"
+                estimate = (cell.seeds * (cell.episodes - trained) / rate, "its own rate so far")
+            else:
+                estimate = estimate_seconds(cell, rates, cell.episodes - trained)
             if status == "done":
                 cost = "nothing left to run"
             elif estimate is None:
@@ -245,7 +250,8 @@ def cmd_sweep(args) -> int:
                 cost = "cost not measured"
             else:
                 total += estimate[0]
-                cost = f"~{estimate[0] / 3600:.1f} core-h{' left' if trained else ''} (rate of {estimate[1]})"
+                cost = (f"~{estimate[0] / 3600:.1f} core-h{' left' if trained else ''} "
+                        + (f"({estimate[1]})" if rate is not None else f"(rate of {estimate[1]})"))
             holder = live_holder(os.path.join(out, cell.path)) if status != "done" else None
             if holder:  # its seeds' folder is a live process's now: say so rather than "interrupted"
                 status = f"running (pid {holder['pid']}, since {holder.get('since', '?')})"
@@ -254,6 +260,8 @@ def cmd_sweep(args) -> int:
         for scenario, method, why in not_run_cells(args.experiment, args.protocol):
             print(f"  {scenario}/{method}: not run under this protocol: {why}")
         print(f"estimated {total / 3600:.1f} core-hours left at the measured rates of {args.rates}"
+              + (f" ({own} started cell{'s' if own > 1 else ''} at {'their' if own > 1 else 'its'} own rate so far)"
+                 if own else "")
               + (f"; {unknown} cells not measured" if unknown else ""))
         return 0
     if args.cluster == "ray":

@@ -207,3 +207,38 @@ def test_the_cpu_protocol_shortens_budgets_and_schedules_in_proportion_and_says_
     # the paper protocol changes nothing but the seeds
     paper_cell = [c for c in plan("overcooked", "paper") if c.path.startswith("overcooked-A/tomacvf/")][0]
     assert paper_cell.config() == paper and paper_cell.seeds == 20
+
+
+def test_a_started_cell_is_costed_at_the_rate_it_has_trained_at(tmp_path, capsys):
+    from jaxmac.cli import main
+    from jaxmac.study.results_page import progress_text
+    from jaxmac.study.stats import RangeProgress, own_rate
+
+    cell = plan("bp", "smoke", only="boxpushing-6x6/tomacvf/")[0]  # 1 seed x 32 episodes
+    run = tmp_path / cell.path
+    run.mkdir(parents=True)
+    config = cell.config()
+    meta = {"config": config.to_dict(), "seeds": 1, "seed_offset": 0, "rounds_per_chunk": 1}
+    (run / "config.json").write_text(json.dumps(meta))
+    assert own_rate(str(run)) is None  # no checkpoint yet
+    (run / "metrics.csv").write_text(f"seed,round,episodes\n0,0,{config.num_envs}\n")
+    (run / "progress.json").write_text(json.dumps({"chunks_done": 1, "wall_seconds": 20.0}))
+    assert own_rate(str(run)) == pytest.approx(config.num_envs / 20.0)  # one chunk of one round in 20 s
+    (run / "attempts.jsonl").write_text(json.dumps({"devices": ["cpu:0"]}) + "\n"
+                                        + json.dumps({"devices": ["cpu:0", "cpu:1"]}) + "\n")
+    rate = own_rate(str(run))
+    assert rate == pytest.approx(config.num_envs / 40.0)  # core-seconds: the widest attempt used two cores
+    left = 32 - config.num_envs
+    assert main(["sweep", "bp", "--protocol", "smoke", "--only", "boxpushing-6x6/tomacvf/", "--dry-run",
+                 "--out", str(tmp_path)]) == 0
+    out = capsys.readouterr().out
+    assert f"interrupted at {config.num_envs}, ~{left / rate / 3600:.1f} core-h left (its own rate so far)" in out
+    assert "(1 started cell at its own rate so far)" in out
+    # the results page: a range with a rate is costed at it, one without at the method's measured rate
+    rates = {"tomacvf@overcooked-B": {"episodes_per_s": 0.1}}
+    ranges = [RangeProgress("seeds0-2", 2, 100, 1000, rate=0.5)]  # 1,800 seed-episodes at 0.5 per s: 3,600 s
+    assert progress_text(ranges, "overcooked-B", "tomacvf", rates) == (
+        "100 of 1,000 episodes per seed (seeds 0–1); ~1.0 core-hours left at its own rate so far")
+    ranges.append(RangeProgress("seeds2-4", 2, 820, 1000))  # 360 seed-episodes at 0.1 per s: 3,600 s
+    assert progress_text(ranges, "overcooked-B", "tomacvf", rates).endswith(
+        "; ~2.0 core-hours left at its own rate so far and the rate measured for tomacvf@overcooked-B")

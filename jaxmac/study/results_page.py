@@ -153,22 +153,32 @@ def _episodes_text(cell) -> str:
 
 
 def progress_text(ranges, scenario: str, method: str, rates: dict | None) -> str:
-    """What a cell's unfinished seed ranges have run ("14,208 of 120,000 episodes per seed (seeds 0–1), …") and,
-    where a training rate of the method was measured (``jaxmac calibrate``), the core-hours they still cost at it."""
-    parts, left = [], 0
-    for r in ranges:
-        first = seed_range(r.folder)[0]
-        parts.append(f"{r.episodes:,} of {r.budget:,} episodes per seed (seeds {first}–{first + r.seeds - 1})")
-        left += r.seeds * max(r.budget - r.episodes, 0)
-    text = "; ".join(parts)
+    """What a cell's unfinished seed ranges have run ("14,208 of 120,000 episodes per seed (seeds 0–1), …") and the
+    core-hours they still cost: at the rate each range has trained at so far (``own_rate``), else at the rate
+    measured for the method (``jaxmac calibrate``)."""
+    parts, seconds, measured, unknown = [], 0.0, set(), False
     try:
         method_obj = method_by_name(method)
     except ValueError:
-        return text
-    estimate = estimate_seconds(Cell("", method_obj, scenario, 0, 1, left), rates or {})
-    if estimate is not None:
-        seconds, measured = estimate
-        text += f"; {_hours_text(seconds)} left at the rate measured for {measured}"
+        method_obj = None
+    for r in ranges:
+        first = seed_range(r.folder)[0]
+        parts.append(f"{r.episodes:,} of {r.budget:,} episodes per seed (seeds {first}–{first + r.seeds - 1})")
+        left = r.seeds * max(r.budget - r.episodes, 0)
+        if r.rate is not None:
+            seconds += left / r.rate
+            measured.add("its own rate so far")
+            continue
+        estimate = (estimate_seconds(Cell("", method_obj, scenario, 0, 1, left), rates or {})
+                    if method_obj is not None else None)
+        if estimate is None:
+            unknown = True
+        else:
+            seconds += estimate[0]
+            measured.add(f"the rate measured for {estimate[1]}")
+    text = "; ".join(parts)
+    if measured and not unknown:
+        text += f"; {_hours_text(seconds)} left at {' and '.join(sorted(measured))}"
     return text
 
 

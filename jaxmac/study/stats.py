@@ -177,6 +177,7 @@ class RangeProgress:
     seeds: int
     episodes: int  # training episodes per seed in its metrics.csv so far (the least over its seeds; 0 = none yet)
     budget: int  # training episodes per seed it is configured for
+    rate: float | None = None  # seed-episodes per core-second it has trained at so far (``own_rate``); None: unknown
 
 
 def trained_episodes(run_dir: str, seeds: int) -> int:
@@ -186,6 +187,31 @@ def trained_episodes(run_dir: str, seeds: int) -> int:
 
     last = episodes_per_seed(os.path.join(run_dir, "metrics.csv"))
     return min(last.values()) if len(last) == seeds else 0
+
+
+def own_rate(run_dir: str) -> float | None:
+    """The rate an unfinished run folder has trained at so far, in seed-episodes per core-second: the episodes its
+    newest checkpoint covers (``progress.json``'s chunks × rounds per chunk × parallel episodes × seeds) over the wall
+    seconds they took, accumulated over resumes and compilations included, times the most devices any attempt used
+    (``attempts.jsonl``; 1 without it). None before its first checkpoint or when a file is unreadable. A better guide
+    to what the run still costs than another scenario's rate: Overcooked-C's ToMacVF ran at twice Overcooked-B's."""
+    try:
+        with open(os.path.join(run_dir, "progress.json")) as f:
+            progress = json.load(f)
+        with open(os.path.join(run_dir, "config.json")) as f:
+            config = json.load(f)
+        episodes = (progress["chunks_done"] * config["rounds_per_chunk"] * config["config"]["num_envs"]
+                    * config["seeds"])
+        wall = float(progress["wall_seconds"])
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+    devices = 1
+    try:
+        with open(os.path.join(run_dir, "attempts.jsonl")) as f:
+            devices = max([devices] + [len(json.loads(line).get("devices", [])) for line in f if line.strip()])
+    except (OSError, ValueError):
+        pass
+    return episodes / (wall * devices) if episodes > 0 and wall > 0 else None
 
 
 def load_progress(sweep_dir: str) -> dict[tuple[str, str], list[RangeProgress]]:
@@ -200,7 +226,7 @@ def load_progress(sweep_dir: str) -> dict[tuple[str, str], list[RangeProgress]]:
             first, end = seed_range(d)
             episodes = trained_episodes(run, end - first)
             progress.setdefault((scenario, method), []).append(
-                RangeProgress(d, end - first, episodes, planned_episodes(run, {"episodes": 0})))
+                RangeProgress(d, end - first, episodes, planned_episodes(run, {"episodes": 0}), own_rate(run)))
     return progress
 
 
