@@ -244,3 +244,14 @@ def test_a_scenario_the_protocol_leaves_out_says_so_instead_of_waiting(tmp_path)
     assert "Not run on warehouse-E under this protocol: ablation on Overcooked-B only in this protocol." in ablation
     assert "No method has finished on warehouse-E" not in page
     assert "| ToMacVF w/o ATPG | not started: 4 seeds × 120,000 episodes |" in ablation
+    # the mixers run on Overcooked-A only: the finished ToMacVF cells of B and C (the baselines comparison's) make no
+    # mixers table, headline row, figure panel or aggregate there
+    _fake_run(sweep / "overcooked-C" / "tomacvf" / "seeds0-2", 0, [120.0, 130.0])
+    _fake_run(sweep / "overcooked-A" / "tomacvf" / "seeds0-2", 0, [150.0, 160.0])
+    page = pathlib.Path(write_page(str(sweep), str(tmp_path / "out"), ["mixers"])).read_text()
+    mixers = page.split("## mixers")[1].split("## Cells not started")[0]
+    assert ("Not run on overcooked-B, overcooked-C under this protocol: the mixers on Overcooked-A only in this "
+            "protocol.") in mixers
+    assert "**overcooked-A**" in mixers and "**overcooked-B**" not in mixers and "**overcooked-C**" not in mixers
+    assert "| mixers | overcooked-A |" in page and "| mixers | overcooked-B |" not in page
+    assert "Aggregates: not every method has finished every scenario yet." in mixers

@@ -63,13 +63,14 @@ def _has_finished_cell(results, experiment: str, scenario: str | None = None) ->
     return any((s, m.name) in results for s in ([scenario] if scenario else scenarios) for m in methods)
 
 
-def experiment_figure(results, experiment: str, out_base: str, window: int = 10) -> bool:
-    """One panel per scenario of ``experiment``; False when no cell of it has finished. A curve of a single
-    evaluation point is a marker (with its s.e. bar), as a line through one point draws nothing."""
+def experiment_figure(results, experiment: str, out_base: str, window: int = 10, protocol: str | None = None) -> bool:
+    """One panel per scenario of ``experiment`` that ``protocol`` runs it on (``scenarios_run``); False when no cell
+    of it has finished. A curve of a single evaluation point is a marker (with its s.e. bar), as a line through one
+    point draws nothing."""
     from matplotlib.figure import Figure  # its own Agg canvas: never touches pyplot's backend or figure list
 
-    methods, scenarios = EXPERIMENTS[experiment]
-    if not _has_finished_cell(results, experiment):
+    methods, scenarios = EXPERIMENTS[experiment][0], scenarios_run(experiment, protocol)
+    if not scenarios or not _has_finished_cell(results, experiment):
         return False
     colours = method_colours()
     fig = Figure(figsize=(4.2 * len(scenarios), 3.6), dpi=110)
@@ -124,6 +125,14 @@ def _left_out_reason(protocol: str | None, methods, scenario: str) -> str | None
     if not reasons or not all(reasons):
         return None
     return reasons[0].split(":")[0]
+
+
+def scenarios_run(experiment: str, protocol: str | None) -> list[str]:
+    """The scenarios of ``experiment`` that ``protocol`` runs it on: all but those where it leaves out every method
+    but ToMacVF (``_left_out_reason``; e.g. the full protocol's mixers on Overcooked B and C, where ToMacVF's cell
+    is the comparison's and no other mixer runs, so the experiment would have a row of one method)."""
+    methods, scenarios = EXPERIMENTS[experiment]
+    return [s for s in scenarios if not _left_out_reason(protocol, methods, s)]
 
 
 def _few_seeds_sentence(cells, labels: dict[str, str]) -> str:
@@ -329,9 +338,9 @@ def headline_table(results, experiments: list[str], protocol: str | None = None)
     lines = ["| experiment | scenario | " + " | ".join(columns.values()) + " |",
              "|---|---|" + "---|" * len(columns)]
     for experiment in experiments:
-        methods, scenarios = EXPERIMENTS[experiment]
+        methods = EXPERIMENTS[experiment][0]
         names = {m.name for m in methods}
-        for scenario in scenarios:
+        for scenario in scenarios_run(experiment, protocol):
             cells = [results[(scenario, n)] for n in columns if n in names and (scenario, n) in results]
             if not cells:
                 continue  # a scenario no method has finished: no row of "…"
@@ -354,11 +363,11 @@ def aggregate_lines(results, experiment: str, protocol: str | None = None) -> li
     """IQM and probability of improvement across the experiment's scenarios, over the methods that ran on every one
     of them; a method the protocol leaves out on some scenario is named and left out of the aggregates. Not
     computed when a cell has fewer than 2 seeds (its intervals would be a single point)."""
-    methods, scenarios = EXPERIMENTS[experiment]
+    methods, scenarios = EXPERIMENTS[experiment][0], scenarios_run(experiment, protocol)
     labels = {m.name: m.label or m.name for m in methods}
     left_out = [m.name for m in methods if any(_not_run_reason(protocol, m.name, s) for s in scenarios)]
     names = [m.name for m in methods if m.name not in left_out]
-    if not names:
+    if not names or not scenarios:
         return ["Aggregates: no method runs on every scenario under this protocol.", ""]
     if any((s, n) not in results for s in scenarios for n in names):
         return ["Aggregates: not every method has finished every scenario yet.", ""]
@@ -625,20 +634,22 @@ def write_page(sweep_dir: str, out_dir: str, experiments: list[str], protocol: s
         if not _has_finished_cell(results, experiment):
             continue  # named in the header's "Not run" line
         lines += [f"## {experiment}", ""]
-        if experiment_figure(results, experiment, os.path.join(out_dir, experiment)):
+        if experiment_figure(results, experiment, os.path.join(out_dir, experiment), protocol=protocol):
             lines += [f"![{experiment}]({experiment}.png)", ""]
         methods, scenarios = EXPERIMENTS[experiment]
-        # a scenario no cell of which has finished or started gets one line, the others their table
-        idle = [s for s in scenarios if not any((s, m.name) in results or (s, m.name) in progress for m in methods)]
+        # a scenario the protocol leaves the experiment out of, or no cell of which has finished or started, gets
+        # one line; the others their table
+        left_out = {s: why for s in scenarios if (why := _left_out_reason(protocol, methods, s))}
+        idle = [s for s in scenarios if s not in left_out
+                and not any((s, m.name) in results or (s, m.name) in progress for m in methods)]
         for scenario in scenarios:
-            if scenario not in idle:
+            if scenario not in idle and scenario not in left_out:
                 lines += scenario_table(results, experiment, scenario, protocol, progress, rates)
-        left_out = {s: why for s in idle if (why := _left_out_reason(protocol, methods, s))}
-        idle = [s for s in idle if s not in left_out]
         if idle:
             lines += [f"No method has finished on {', '.join(idle)} yet.", ""]
-        for s, why in left_out.items():
-            lines += [f"Not run on {s} under this protocol: {why}.", ""]
+        for why in dict.fromkeys(left_out.values()):
+            lines += [f"Not run on {', '.join(s for s in left_out if left_out[s] == why)} under this protocol: "
+                      f"{why}.", ""]
         lines += aggregate_lines(results, experiment, protocol)
     lines += not_started_section(not_started, protocol, rates)
     path = os.path.join(out_dir, "RESULTS.md")
