@@ -287,6 +287,17 @@ def write_json_atomic(path: str, obj: Any) -> None:
             from err
 
 
+def read_progress(out_dir: str) -> dict | None:
+    """The run's ``progress.json`` (what its newest checkpoint covers: ``chunks_done``, and ``wall_seconds`` of
+    training accumulated over resumes); None before the first checkpoint or when it cannot be read."""
+    try:
+        with open(os.path.join(out_dir, "progress.json")) as f:
+            progress = json.load(f)
+    except (OSError, ValueError):
+        return None
+    return progress if isinstance(progress, dict) else None
+
+
 def is_finished(out_dir: str) -> bool:
     return os.path.exists(os.path.join(out_dir, "summary.json"))
 

@@ -222,10 +222,11 @@ def finish_run(out_dir: str) -> dict[str, Any]:
 
 
 def _wall_seconds(out_dir: str) -> float:
+    from jaxmac.runs.folders import read_progress
+
     try:
-        with open(os.path.join(out_dir, "progress.json")) as f:
-            return float(json.load(f)["wall_seconds"])
-    except (OSError, ValueError, KeyError, TypeError):
+        return float((read_progress(out_dir) or {})["wall_seconds"])
+    except (KeyError, TypeError, ValueError):
         return 0.0
 
 

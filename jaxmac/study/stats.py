@@ -195,15 +195,16 @@ def own_rate(run_dir: str) -> float | None:
     seconds they took, accumulated over resumes and compilations included, times the most devices any attempt used
     (``attempts.jsonl``; 1 without it). None before its first checkpoint or when a file is unreadable. A better guide
     to what the run still costs than another scenario's rate: Overcooked-C's ToMacVF ran at twice Overcooked-B's."""
+    from jaxmac.runs.folders import read_meta, read_progress
+
+    progress = read_progress(run_dir)
+    if progress is None:
+        return None
     try:
-        with open(os.path.join(run_dir, "progress.json")) as f:
-            progress = json.load(f)
-        with open(os.path.join(run_dir, "config.json")) as f:
-            config = json.load(f)
-        episodes = (progress["chunks_done"] * config["rounds_per_chunk"] * config["config"]["num_envs"]
-                    * config["seeds"])
+        meta = read_meta(run_dir)
+        episodes = progress["chunks_done"] * meta["rounds_per_chunk"] * meta["config"]["num_envs"] * meta["seeds"]
         wall = float(progress["wall_seconds"])
-    except (OSError, ValueError, KeyError, TypeError):
+    except (ValueError, KeyError, TypeError):
         return None
     devices = 1
     try:

@@ -427,11 +427,9 @@ def record_attempt(path: str, action: str, devices: int = 1, where: dict | None 
               "devices": [str(d) for d in used], "platform": used[0].platform,
               "device_kind": used[0].device_kind, "jax": jax.__version__}
     if action == "resume":
-        try:
-            with open(os.path.join(path, "progress.json")) as f:
-                record["from_chunk"] = json.load(f)["chunks_done"]
-        except (OSError, ValueError, KeyError):
-            record["from_chunk"] = 0
+        from jaxmac.runs.folders import read_progress
+
+        record["from_chunk"] = (read_progress(path) or {}).get("chunks_done", 0)
     try:  # a record for people: a full disk must not stop the cell (its run folder says so itself)
         append_text(os.path.join(path, ATTEMPTS_FILE), json.dumps(record) + "\n")
     except OSError:
