@@ -255,3 +255,15 @@ def test_a_scenario_the_protocol_leaves_out_says_so_instead_of_waiting(tmp_path)
     assert "**overcooked-A**" in mixers and "**overcooked-B**" not in mixers and "**overcooked-C**" not in mixers
     assert "| mixers | overcooked-A |" in page and "| mixers | overcooked-B |" not in page
     assert "Aggregates: not every method has finished every scenario yet." in mixers
+
+
+def test_an_experiment_whose_finished_cells_are_all_on_scenarios_it_leaves_out_has_no_section(tmp_path):
+    # ToMacVF's Overcooked-C cell belongs to the baselines comparison; the full protocol runs the mixers on A only, so
+    # the mixers have nothing to show yet: no section, no headline row, named in the header's "Not run" line
+    sweep = tmp_path / "full"
+    _fake_run(sweep / "overcooked-C" / "tomacvf" / "seeds0-2", 0, [120.0, 130.0])
+    page = pathlib.Path(write_page(str(sweep), str(tmp_path / "out"), ["mixers"], protocol="full")).read_text()
+    shown = page.split("## Cells not started")[0]  # the closing list of cells not begun names every experiment
+    assert "## mixers" not in shown and "| mixers |" not in shown
+    assert "Not run (no finished cell): mixers." in page.split("## Headline")[0]
+    assert "No finished cell yet." in page

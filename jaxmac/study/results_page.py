@@ -57,10 +57,13 @@ def _tested(cells) -> bool:
     return all(_seeds(c) >= MIN_SEEDS for c in cells)
 
 
-def _has_finished_cell(results, experiment: str, scenario: str | None = None) -> bool:
-    """Whether any method of ``experiment`` has a finished cell (on ``scenario`` only, when given)."""
-    methods, scenarios = EXPERIMENTS[experiment]
-    return any((s, m.name) in results for s in ([scenario] if scenario else scenarios) for m in methods)
+def _has_finished_cell(results, experiment: str, scenario: str | None = None, protocol: str | None = None) -> bool:
+    """Whether any method of ``experiment`` has a finished cell: on ``scenario`` only, when given, else on the
+    scenarios ``protocol`` runs the experiment on (``scenarios_run``: a ToMacVF cell another experiment finished on a
+    scenario this one leaves out does not count)."""
+    methods = EXPERIMENTS[experiment][0]
+    scenarios = [scenario] if scenario else scenarios_run(experiment, protocol)
+    return any((s, m.name) in results for s in scenarios for m in methods)
 
 
 def experiment_figure(results, experiment: str, out_base: str, window: int = 10, protocol: str | None = None) -> bool:
@@ -70,7 +73,7 @@ def experiment_figure(results, experiment: str, out_base: str, window: int = 10,
     from matplotlib.figure import Figure  # its own Agg canvas: never touches pyplot's backend or figure list
 
     methods, scenarios = EXPERIMENTS[experiment][0], scenarios_run(experiment, protocol)
-    if not scenarios or not _has_finished_cell(results, experiment):
+    if not scenarios or not _has_finished_cell(results, experiment, protocol=protocol):
         return False
     colours = method_colours()
     fig = Figure(figsize=(4.2 * len(scenarios), 3.6), dpi=110)
@@ -328,7 +331,7 @@ def headline_table(results, experiments: list[str], protocol: str | None = None)
     the protocol leaves out, "…" one not finished, "" a method the experiment does not have. Scenarios and
     experiments with no finished cell have no row (the page names them in one line); [] when none of
     ``experiments`` has one."""
-    experiments = [e for e in experiments if _has_finished_cell(results, e)]
+    experiments = [e for e in experiments if _has_finished_cell(results, e, protocol=protocol)]
     if not experiments:
         return []
     columns: dict[str, str] = {}
@@ -579,7 +582,7 @@ def header_lines(sweep_dir: str, results, experiments: list[str], protocol: str 
     if running:
         lines += ["**Not finished yet** (running or interrupted; `jaxmac sweep` resumes them):", ""]
         lines += [f"- {s}/{m}: {progress_text(progress[(s, m)], s, m, rates)}" for s, m in running] + [""]
-    not_run = [e for e in experiments if not _has_finished_cell(results, e)]
+    not_run = [e for e in experiments if not _has_finished_cell(results, e, protocol=protocol)]
     if not_run:
         lines += [f"Not run (no finished cell): {', '.join(not_run)}.", ""]
     if not_started:
@@ -631,7 +634,7 @@ def write_page(sweep_dir: str, out_dir: str, experiments: list[str], protocol: s
     labels["tomacvf"] = "ToMacVF"  # not the mixers experiment's "ToMacVF_QMIX"
     lines += questions_section(results, labels)
     for experiment in experiments:
-        if not _has_finished_cell(results, experiment):
+        if not _has_finished_cell(results, experiment, protocol=protocol):
             continue  # named in the header's "Not run" line
         lines += [f"## {experiment}", ""]
         if experiment_figure(results, experiment, os.path.join(out_dir, experiment), protocol=protocol):
