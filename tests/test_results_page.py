@@ -267,3 +267,23 @@ def test_an_experiment_whose_finished_cells_are_all_on_scenarios_it_leaves_out_h
     assert "## mixers" not in shown and "| mixers |" not in shown
     assert "Not run (no finished cell): mixers." in page.split("## Headline")[0]
     assert "No finished cell yet." in page
+
+
+def test_question_one_weighs_the_claim_and_who_got_to_90_percent_first(tmp_path):
+    # Overcooked-A: ToMacVF has the best mean but Welch's test cannot tell it from Mac-IAICC, which also got to 90 %
+    # of the ceiling (147.9) sooner (its 10 last evaluations start 4 points earlier); Overcooked-B: ToMacVF is best,
+    # told apart, and the only one there
+    sweep = tmp_path / "full"
+    _fake_run(sweep / "overcooked-A" / "tomacvf" / "seeds0-2", 0, [155.0, 165.0], points=16, budget=128)
+    _fake_run(sweep / "overcooked-A" / "mac_iaicc" / "seeds0-2", 0, [150.0, 160.0])
+    _fake_run(sweep / "overcooked-A" / "mac_cac" / "seeds0-2", 0, [20.0, 30.0])
+    _fake_run(sweep / "overcooked-B" / "tomacvf" / "seeds0-2", 0, [140.0, 150.0])
+    _fake_run(sweep / "overcooked-B" / "mac_iaicc" / "seeds0-2", 0, [100.0, 110.0])
+    page = pathlib.Path(write_page(str(sweep), str(tmp_path / "out"), ["overcooked"])).read_text()
+    question = page.split("**1.")[1].split("**2.")[0]
+    assert "best mean on 2 (overcooked-A, overcooked-B)" in question
+    assert ("  - Episodes to 90 % of the ceiling, ToMacVF against the baseline that got there first: overcooked-A 128 vs "
+            "Mac-IAICC 96; overcooked-B 96 vs never (every baseline).") in question
+    assert ("  - Verdict: the paper's claim that ToMacVF beats every baseline holds (best mean, told apart from every "
+            "baseline) on 1 of 2 scenarios (overcooked-B); ToMacVF gets to 90 % of the ceiling first (on more of its "
+            "seeds, or on as many and sooner) on 1 of 2 (overcooked-B).") in question
