@@ -100,7 +100,7 @@ def main(argv=None) -> None:
     use_host_devices(args.devices)  # before JAX starts
     from jaxmac.plotting import plot_curves
     from jaxmac.presets import scenario_config
-    from jaxmac.study.stats import reach_summary, welch_p
+    from jaxmac.study.stats import reach_summary, return_column, welch_p
     from jaxmac.study.sweep import PROTOCOLS, TOMACVF, WO_SJERT, Cell, fit_to_existing, protocol_cell, run_sweep
 
     first, count = args.seeds
@@ -150,8 +150,10 @@ def main(argv=None) -> None:
         print(f"| {label} | {final} | {p_value} | {reach_summary(row['reach'])} | {row['wall_s']:.0f} "
               f"| {row['episodes_per_s']:.1f} | {row['updates_per_s']:.2f} | {sizes['slot']:,} | {view:,} |")
     png = os.path.join(out, args.scenario, "sjert_vs_jert.png")
+    undiscounted = return_column(args.scenario) == "eval_return"  # the measure run_row read (Warehouse: γ 1)
     plot_curves([(label, r["episodes"], r["curves"]) for label, r in rows.items()], png,
-                f"{args.scenario}: ToMacVF, Mac-SJERT vs Mac-JERT ({min(seeds.values())} seeds)", pdf=True)
+                f"{args.scenario}: ToMacVF, Mac-SJERT vs Mac-JERT ({min(seeds.values())} seeds)", pdf=True,
+                ylabel="evaluation return (undiscounted)" if undiscounted else None)
     with open(os.path.join(out, args.scenario, "sjert_vs_jert.json"), "w") as fh:
         json.dump({"bytes": sizes, **{label: {"finals": r["finals"].tolist(), "wall_s": r["wall_s"],
                                               "episodes_per_s": r["episodes_per_s"],
