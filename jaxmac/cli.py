@@ -7,6 +7,7 @@
     jaxmac train --scenario boxpushing-6x6 --seeds 4:8 --devices 2   # seeds 4-7, sharded over 2 devices
     jaxmac train --resume runs/RUN_DIR                    # continue a killed run
     jaxmac train --finish runs/RUN_DIR                    # end a run where it stands (a curve flat for long)
+    jaxmac fork runs/RUN_DIR --out runs/NEW --set lr=1e-4 # a new run from its checkpoint, other settings
     jaxmac eval runs/RUN_DIR                              # greedy episode: text + PNG strip
     jaxmac sweep ablation --protocol cpu                  # one of the paper's experiments, cell by cell
     jaxmac results experiments/sweeps/cpu                 # its results page -> experiments/sweeps/cpu/results/
@@ -431,10 +432,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("runs", nargs="+", metavar="RUN_DIR", help="finished run folders")
     p.set_defaults(func=cmd_table)
 
-    from jaxmac.runs import qtot
+    from jaxmac.runs import fork, qtot
     from jaxmac.study import calibrate, overlay
 
     for name, module, func, about in (
+            ("fork", fork, cmd_fork, ("a new run folder from a checkpoint of another run, with other settings that "
+                                      "keep its shapes or another budget (train it with --resume)")),
             ("calibrate", calibrate, cmd_calibrate, ("measure what a sweep cell costs here (episodes/s per method "
                                                      "and scenario) into the rates file of `jaxmac sweep --rates`")),
             ("overlay", overlay, cmd_overlay, ("one figure overlaying the learning curves of jaxmac runs and of "
@@ -477,6 +480,12 @@ def cmd_calibrate(args) -> int:
 
 def cmd_overlay(args) -> int:
     from jaxmac.study.overlay import run
+
+    return run(args)
+
+
+def cmd_fork(args) -> int:
+    from jaxmac.runs.fork import run
 
     return run(args)
 

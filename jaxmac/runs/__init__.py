@@ -29,6 +29,7 @@ The modules, one job each:
     programs.py     the jitted programs of a setting (init, chunk, final evaluations), built once per process
     resources.py    compilation cache, host devices, seed sharding, the budget and memory checks before compiling
     loop.py         train, resume, finish, extend, change a diverged run's settings; the chunk loop; the run's end
+    fork.py         ``jaxmac fork``: a new run folder from a checkpoint of another, other settings or budget
     workers.py      several training processes on one machine (``jaxmac train --workers N``), merged at the end
     loggers.py      live views of a run: TensorBoard event files or W&B (``--log``), fed the rows a checkpoint covers
     evaluation.py   ``jaxmac eval``: greedy episodes of a run's checkpoint, played, printed and drawn

@@ -59,7 +59,8 @@ class Start:
     steps: list[int]  # every checkpoint step found
 
 
-def _checkpoint_steps(out_dir: str) -> list[int]:
+def checkpoint_steps(out_dir: str) -> list[int]:
+    """The chunk counts of the checkpoints ``out_dir`` keeps, newest first."""
     folder = os.path.join(out_dir, "checkpoints")
     if not os.path.isdir(folder):
         return []
@@ -74,7 +75,7 @@ def start_point(out_dir: str, programs: Programs, meta: dict, need_rows: bool) -
     keys = jax.vmap(jax.random.key)(jnp.arange(meta["seed_offset"], meta["seed_offset"] + meta["seeds"]))
     state = programs.init(keys)
     metrics = read_metrics_file(os.path.join(out_dir, "metrics.csv"))
-    steps = _checkpoint_steps(out_dir)
+    steps = checkpoint_steps(out_dir)
     skipped: list[tuple[int, str]] = []
     if not steps:
         return Start(state, 0, skipped, metrics, steps)

@@ -242,12 +242,10 @@ def _set_aside_early_summary(out_dir: str, training_on: bool) -> None:
     os.replace(path, os.path.join(out_dir, f"summary.stopped-at-{episodes}.json"))
 
 
-def _changed_settings(out_dir: str, meta: dict, assignments: list[str]) -> dict:
-    """``meta`` with ``assignments`` (``--set`` strings) applied to a diverged run, validated against its checkpoint
-    (the training state must keep its shapes); nothing written."""
-    if not os.path.exists(os.path.join(out_dir, "diverged.json")):
-        raise ValueError(f"{out_dir} did not diverge: --resume continues a run as it was configured "
-                         "(--set is only for a diverged run)")
+def settings_keeping_shapes(out_dir: str, meta: dict, assignments: list[str], who: str) -> TrainConfig:
+    """The run's settings with ``assignments`` (``--set`` strings) applied, refused when they change the shapes of the
+    training state (its checkpoints would not fit: network sizes, ring, seeds' batch) — ``who`` names the runs that
+    may change settings, for the message. Nothing written."""
     old = TrainConfig.from_dict(meta["config"])
     new = old.override_strings(assignments)
     before = abstract_state(programs_for(old, meta["rounds_per_chunk"]), meta["seeds"])
@@ -255,8 +253,19 @@ def _changed_settings(out_dir: str, meta: dict, assignments: list[str]) -> dict:
     differ = _shape_changes(before, after)
     if differ:
         raise ValueError(f"--set {' '.join(assignments)} changes the shapes of the training state ({differ}): the "
-                         f"checkpoint of {out_dir} would not fit. A diverged run continues only with settings that keep "
-                         "them (learning rates, schedules, loss weights); nothing was changed")
+                         f"checkpoint of {out_dir} would not fit. {who} only with settings that keep them (learning "
+                         "rates, schedules, loss weights); nothing was changed")
+    return new
+
+
+def _changed_settings(out_dir: str, meta: dict, assignments: list[str]) -> dict:
+    """``meta`` with ``assignments`` (``--set`` strings) applied to a diverged run, validated against its checkpoint
+    (the training state must keep its shapes); nothing written."""
+    if not os.path.exists(os.path.join(out_dir, "diverged.json")):
+        raise ValueError(f"{out_dir} did not diverge: --resume continues a run as it was configured "
+                         "(--set is only for a diverged run; jaxmac fork starts a new run from a checkpoint with "
+                         "other settings)")
+    new = settings_keeping_shapes(out_dir, meta, assignments, "A diverged run continues")
     changed = dict(meta, config=new.to_dict())
     changed["changed_after_divergence"] = list(meta.get("changed_after_divergence", [])) + list(assignments)
     return changed
