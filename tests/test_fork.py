@@ -56,6 +56,9 @@ def test_a_fork_takes_other_settings_and_a_budget_and_says_where_it_came_from(so
     (dict(chunk=2, episodes=32), "episodes=32: the fork starts where chunk 2 of .* ends, at 32 episodes per seed"),
     (dict(chunk=2, episodes=40), "episodes=40 ends inside a chunk.*Give episodes=32 or 48"),
     (dict(assignments=["rnn_size=16"]), "changes the shapes of the training state"),
+    # the shapes stay, but the checkpoint's chunks are rounds of 8 episodes: 16 would misnumber every episode after it
+    (dict(chunk=2, episodes=128, assignments=["num_envs=16"]), "num_envs=16: the checkpoints of .* count rounds of "
+                                                                "num_envs=8 episodes per seed"),
 ])
 def test_what_would_not_fit_is_refused_and_nothing_written(source, tmp_path, kwargs, message):
     fork = tmp_path / "refused"

@@ -26,13 +26,18 @@ from jaxmac.runs.metrics_csv import cut_metrics, read_metrics_file
 from jaxmac.runs.resources import check_whole_chunks
 
 
+def episodes_at(meta: dict, chunk: int) -> int:
+    """The episodes per seed a run (``config.json`` contents ``meta``) had trained after ``chunk`` chunks."""
+    return chunk * meta["rounds_per_chunk"] * meta["config"]["num_envs"]
+
+
 def fork_config(src: str, meta: dict, chunk: int, episodes: int | None, assignments: list[str]) -> TrainConfig:
     """The fork's settings: ``src``'s with ``assignments`` (shapes kept) and budget ``episodes`` (default: the
     source's), which must end on a chunk after ``chunk``. Nothing written."""
     config = (settings_keeping_shapes(src, meta, assignments, "A fork starts from the checkpoint")
               if assignments else TrainConfig.from_dict(meta["config"]))
     rounds_per_chunk = meta["rounds_per_chunk"]
-    at = chunk * rounds_per_chunk * config.num_envs
+    at = episodes_at(meta, chunk)
     if episodes is not None:
         if isinstance(episodes, bool) or not isinstance(episodes, int) or episodes <= at:
             raise ValueError(f"episodes={episodes!r}: the fork starts where chunk {chunk} of {src} ends, at {at} "
@@ -70,9 +75,8 @@ def fork_run(src: str, out: str, chunk: int | None = None, episodes: int | None 
     refuse_run_files(out)
     created = not os.path.exists(out)
     os.makedirs(out, exist_ok=True)
-    at = chunk * meta["rounds_per_chunk"] * config.num_envs
-    forked = dict(meta, config=config.to_dict(),
-                  forked_from={"run": os.path.abspath(src), "chunk": chunk, "episodes": at, "set": assignments})
+    forked = dict(meta, config=config.to_dict(), forked_from={"run": os.path.abspath(src), "chunk": chunk,
+                                                              "episodes": episodes_at(meta, chunk), "set": assignments})
     try:
         try:
             shutil.copytree(os.path.join(src, "checkpoints", str(chunk)), os.path.join(out, "checkpoints", str(chunk)))

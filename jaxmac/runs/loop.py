@@ -39,6 +39,7 @@ from jaxmac.runs.folders import (
     is_finished,
     lock_run_folder,
     read_meta,
+    read_progress,
     refuse_run_files,
     run_files,
     size_of,
@@ -222,8 +223,6 @@ def finish_run(out_dir: str) -> dict[str, Any]:
 
 
 def _wall_seconds(out_dir: str) -> float:
-    from jaxmac.runs.folders import read_progress
-
     try:
         return float((read_progress(out_dir) or {})["wall_seconds"])
     except (KeyError, TypeError, ValueError):
@@ -248,6 +247,10 @@ def settings_keeping_shapes(out_dir: str, meta: dict, assignments: list[str], wh
     may change settings, for the message. Nothing written."""
     old = TrainConfig.from_dict(meta["config"])
     new = old.override_strings(assignments)
+    if new.num_envs != old.num_envs:  # keeps the shapes, but chunks count rounds of num_envs episodes
+        raise ValueError(f"--set num_envs={new.num_envs}: the checkpoints of {out_dir} count rounds of "
+                         f"num_envs={old.num_envs} episodes per seed, so another value would misnumber the episodes "
+                         "trained (the ε schedule, metrics.csv, the budget); nothing was changed")
     before = abstract_state(programs_for(old, meta["rounds_per_chunk"]), meta["seeds"])
     after = abstract_state(programs_for(new, meta["rounds_per_chunk"]), meta["seeds"])
     differ = _shape_changes(before, after)

@@ -148,24 +148,28 @@ def _few_seeds_sentence(cells, labels: dict[str, str]) -> str:
             f"and a test need at least {MIN_SEEDS} seeds per method.")
 
 
-def reach_text(cell, fraction: float = 0.9) -> str:
-    """Sample efficiency of a cell: the mean over its seeds of the episodes at which the smoothed evaluation return
-    first reaches ``fraction`` of the ceiling (``stats.episodes_to_fraction``), "(k of n seeds)" when some seeds
-    never did; "never" when none did, "–" without a ceiling."""
+def _reach(cell, fraction: float = 0.9) -> np.ndarray | None:
+    """Per seed, the episodes at which the smoothed evaluation return first reaches ``fraction`` of the ceiling
+    (NaN: never; ``stats.episodes_to_fraction``); None without a ceiling or curves."""
     ceiling = CEILINGS.get(cell.scenario)
     if ceiling is None or not cell.curves.size:
-        return "–"
-    return reach_summary(episodes_to_fraction(cell.episodes, cell.curves, fraction * ceiling))
+        return None
+    return episodes_to_fraction(cell.episodes, cell.curves, fraction * ceiling)
+
+
+def reach_text(cell, fraction: float = 0.9) -> str:
+    """Sample efficiency of a cell: the mean over its seeds of the episodes at which the smoothed evaluation return
+    first reaches ``fraction`` of the ceiling, "(k of n seeds)" when some seeds never did; "never" when none did,
+    "–" without a ceiling."""
+    reach = _reach(cell, fraction)
+    return "–" if reach is None else reach_summary(reach)
 
 
 def reach_rank(cell, fraction: float = 0.9) -> tuple[float, float] | None:
     """A sort key for "got to ``fraction`` of the ceiling first": (minus the share of seeds that got there, their
     mean episodes to it); None without a ceiling or when no seed got there."""
-    ceiling = CEILINGS.get(cell.scenario)
-    if ceiling is None or not cell.curves.size:
-        return None
-    reach = episodes_to_fraction(cell.episodes, cell.curves, fraction * ceiling)
-    got = reach[~np.isnan(reach)]
+    reach = _reach(cell, fraction)
+    got = reach[~np.isnan(reach)] if reach is not None else []
     return (-len(got) / len(reach), float(got.mean())) if len(got) else None
 
 
