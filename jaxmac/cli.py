@@ -210,8 +210,8 @@ def cmd_sweep(args) -> int:
     from jaxmac.runs import enable_compilation_cache, live_holder, use_host_devices
     from jaxmac.runs.resources import default_devices, fit_devices
     from jaxmac.study.stats import own_rate, trained_episodes
-    from jaxmac.study.sweep import (PROTOCOLS, cell_status, estimate_seconds, fit_to_existing, load_rates,
-                                    not_run_cells, plan, run_sweep)
+    from jaxmac.study.sweep import (PROTOCOLS, cell_status, diverged_text, estimate_seconds, fit_to_existing,
+                                    load_rates, not_run_cells, plan, run_sweep)
 
     methods = None
     if args.config is not None:  # a method file: methods added to (or replacing) the experiment's
@@ -239,6 +239,10 @@ def cmd_sweep(args) -> int:
             status = cell_status(out, cell)
             trained = trained_episodes(os.path.join(out, cell.path), cell.seeds) if status != "new" else 0
             rate = own_rate(os.path.join(out, cell.path)) if status != "new" else None
+            if status == "diverged":
+                print(f"  {cell.path}: {cell.episodes} episodes per seed, diverged at {trained} "
+                      f"({diverged_text(os.path.join(out, cell.path))}), not rerun: nothing left to run")
+                continue
             if rate is not None:  # a started cell's own pace beats another scenario's
                 own += status != "done"
                 estimate = (cell.seeds * (cell.episodes - trained) / rate, "its own rate so far")

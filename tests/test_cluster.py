@@ -24,7 +24,7 @@ import pytest
 import ray
 
 from jaxmac.cli import main
-from jaxmac.runs import lock_holder
+from jaxmac.runs import DIVERGED_FILE, lock_holder
 from jaxmac.study.cluster import RETURNED_FILES, run_sweep_ray
 from jaxmac.study.sweep import ATTEMPTS_FILE, Cell, Method, plan, run_sweep
 
@@ -235,7 +235,8 @@ def test_without_a_shared_filesystem_a_cells_files_come_back_to_the_driver(tmp_p
     cell = CELLS[0]
     done = run_sweep_ray([cell], str(out), progress=False, log=_quiet, shared=False, scratch=str(scratch))
     assert done == {cell.path: "trained"}
-    assert sorted(os.listdir(out / cell.path)) == sorted(RETURNED_FILES)  # no checkpoints: they stay on the node
+    # no checkpoints (they stay on the node), no diverged.json (it did not diverge)
+    assert sorted(os.listdir(out / cell.path)) == sorted(set(RETURNED_FILES) - {DIVERGED_FILE})
     _same_cell(out / cell.path, without_ray / "smoke" / cell.path)
     (node_folder,) = [os.path.join(root, cell.path) for root in (scratch / d for d in os.listdir(scratch))]
     assert os.path.isdir(os.path.join(node_folder, "checkpoints"))

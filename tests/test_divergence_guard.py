@@ -17,7 +17,7 @@ import pytest
 from envs_jax.core import RewardBounds, value_bounds
 from envs_jax.policies import uniform_random_actions
 from jaxmac.presets import scenario_config
-from jaxmac.runs import OUT_OF_BOUNDS_COLUMN, flag_out_of_bounds, out_of_bounds_message, train_run
+from jaxmac.runs import OUT_OF_BOUNDS_COLUMN, RunDiverged, flag_out_of_bounds, out_of_bounds_message, train_run
 from jaxmac.runs import loop as run_loop
 
 CONFIG = scenario_config("boxpushing-6x6", tiny=True).override(
@@ -103,7 +103,7 @@ def test_a_run_outside_the_bounds_is_stopped_keeping_its_last_good_checkpoint(tm
     checkpointing it."""
     monkeypatch.setattr(run_loop, "value_bounds_of", lambda config, env: (-1e-9, 1e-9))
     out = tmp_path / "div"
-    with pytest.raises(RuntimeError, match=r"value estimate diverged at seed \d, round 1 \(episode 16\): "
+    with pytest.raises(RunDiverged, match=r"value estimate diverged at seed \d, round 1 \(episode 16\): "
                                            r"q_tot_mean = .* outside the value bounds \[-1e-09, 1e-09\].*--resume"):
         train_run(CONFIG.override(start_train_episodes=16), 2, str(out), rounds_per_chunk=1, progress=False,
                   checkpoint_seconds=0.0)

@@ -287,3 +287,23 @@ def test_question_one_weighs_the_claim_and_who_got_to_90_percent_first(tmp_path)
     assert ("  - Verdict: the paper's claim that ToMacVF beats every baseline holds (best mean, told apart from every "
             "baseline) on 1 of 2 scenarios (overcooked-B); ToMacVF gets to 90 % of the ceiling first (on more of its "
             "seeds, or on as many and sooner) on 1 of 2 (overcooked-B).") in question
+
+
+def test_a_cell_the_divergence_guard_stopped_is_reported_as_diverged_and_costs_nothing_more(tmp_path):
+    sweep = tmp_path / "full"
+    _fake_run(sweep / "overcooked-B" / "tomacvf" / "seeds0-2", 0, [140.0, 150.0])
+    stopped = sweep / "overcooked-B" / "tomacvf-wo-sjert" / "seeds0-2"
+    stopped.mkdir(parents=True)
+    (stopped / "config.json").write_text(json.dumps({"config": {"episodes": 200}}))
+    (stopped / "metrics.csv").write_text("seed,round,episodes,eval_disc_return,eval_return\n"
+                                         "0,0,8,1,1\n1,0,8,1,1\n0,1,16,1,1\n1,1,16,1,1\n")
+    problem = "seed 1, round 1 (episode 16): q_tot_mean = 900.0 is outside [-20.0, 241.5]"
+    (stopped / "diverged.json").write_text(json.dumps({"problem": problem, "kind": "value out of bounds",
+                                                       "chunk": 1, "last_good_checkpoint": None}))
+    rates = {"tomacvf-wo-sjert@overcooked-B": {"episodes_per_s": 0.08}}
+    page = pathlib.Path(write_page(str(sweep), str(tmp_path / "out"), ["ablation"], rates=rates)).read_text()
+    diverged = (f"**diverged** at 16 of 200 episodes per seed (seeds 0–1; the divergence guard stopped it: "
+                f"{problem})")
+    assert f"| ToMacVF w/o Mac-SJERT | {diverged} |" in page.split("**overcooked-B** (ceiling")[1]
+    assert f"- overcooked-B/tomacvf-wo-sjert: {diverged}\n" in page.split("## Headline")[0]
+    assert "core-hours left" not in page.split("## Headline")[0]  # nothing to resume, so nothing it still costs

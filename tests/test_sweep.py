@@ -105,6 +105,52 @@ def test_finished_cells_are_skipped_and_interrupted_ones_resumed(tmp_path, monke
     assert [second[c.path] for c in cells] == ["skipped", "skipped", "resumed"] + ["skipped"] * (len(cells) - 3)
 
 
+def test_a_cell_the_divergence_guard_stops_is_a_result_the_sweep_goes_on_from_and_does_not_rerun(tmp_path,
+                                                                                                 monkeypatch, capsys):
+    from jaxmac.runs import RunDiverged
+
+    calls, lines = [], []
+    _fake_runs(monkeypatch, calls)
+    cells = plan("ablation", "smoke")
+    stopped = os.path.join(str(tmp_path), cells[1].path)
+    problem = "seed 1, round 3 (episode 64): q_tot_mean = 900.0 is outside [-20.0, 241.5]"
+    train_ok = jaxmac.runs.train_run
+
+    def train_run(config, seeds, out, seed_offset=0, **kw):
+        if out != stopped:
+            return train_ok(config, seeds, out, seed_offset, **kw)
+        os.makedirs(out, exist_ok=True)  # the sweep made it, holding its lock
+        meta = {"config": config.to_dict(), "seeds": seeds, "seed_offset": seed_offset}
+        open(os.path.join(out, "config.json"), "w").write(json.dumps(meta))
+        open(os.path.join(out, "diverged.json"), "w").write(json.dumps(
+            {"problem": problem, "kind": "value out of bounds", "chunk": 2, "last_good_checkpoint": 1}))
+        calls.append(("train", out))
+        raise RunDiverged(f"the value estimate diverged at {problem}; stopped.")
+
+    monkeypatch.setattr(jaxmac.runs, "train_run", train_run)
+    first = run_sweep(cells, str(tmp_path), log=lines.append)
+    assert [first[c.path] for c in cells] == ["trained", "diverged"] + ["trained"] * (len(cells) - 2)
+    assert len(calls) == len(cells)  # the cells after it still ran
+    assert f"[2/{len(cells)}] {cells[1].path}: diverged (stopped by the divergence guard after chunk 2: {problem})" \
+        in lines
+    assert cell_status(str(tmp_path), cells[1]) == "diverged"
+    calls.clear()
+    lines.clear()
+    second = run_sweep(cells, str(tmp_path), log=lines.append)
+    assert calls == [] and second[cells[1].path] == "diverged"  # an exact resume would only diverge again
+    assert f"[2/{len(cells)}] {cells[1].path}: diverged, not rerun (stopped by the divergence guard after chunk 2: " \
+           f"{problem})" in lines
+    # --dry-run lists it as diverged, with nothing left to run
+    from jaxmac.cli import main
+
+    open(os.path.join(stopped, "metrics.csv"), "w").write("seed,round,episodes\n0,0,16\n")
+    assert main(["sweep", "ablation", "--protocol", "smoke", "--only", cells[1].path.rsplit("/", 1)[0] + "/",
+                 "--dry-run", "--out", str(tmp_path)]) == 0
+    out = capsys.readouterr().out
+    assert (f"{cells[1].path}: {cells[1].episodes} episodes per seed, diverged at 16 (stopped by the divergence "
+            f"guard after chunk 2: {problem}), not rerun: nothing left to run") in out
+
+
 def test_a_folder_of_another_run_is_refused_naming_what_differs(tmp_path, monkeypatch):
     _fake_runs(monkeypatch, [])
     cells = plan("ablation", "smoke", only="overcooked-B/tomacvf/")

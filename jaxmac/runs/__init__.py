@@ -39,8 +39,9 @@ This package re-exports the names callers use. ``workers`` is imported on first 
 also the workers' entry point (``python -m jaxmac.runs.workers``), which must find it not imported yet.
 """
 
-from jaxmac.runs.divergence import (OUT_OF_BOUNDS_COLUMN, VALUE_METRICS, WATCHED, check_finite, flag_out_of_bounds,
-                                    out_of_bounds_message, value_bounds_of)
+from jaxmac.runs.divergence import (DIVERGED_FILE, OUT_OF_BOUNDS_COLUMN, VALUE_METRICS, WATCHED, RunDiverged,
+                                    check_finite, diverged_record, flag_out_of_bounds, out_of_bounds_message,
+                                    value_bounds_of)
 from jaxmac.runs.folders import (LOCK_FILE, RUN_FILE_PATTERNS, RUN_FILES, FolderLock, RunFolderBusy, WriteFailed,
                                  default_out_dir, is_finished, live_holder, lock_holder, lock_run_folder, read_meta,
                                  refuse_run_files, run_files, try_lock_run_folder, write_json_atomic)
@@ -53,9 +54,11 @@ from jaxmac.runs.resources import (check_budget, check_memory, check_new_run, en
 _WORKER_NAMES = ("is_worker_run", "merge", "resume_workers", "split_seeds", "train_workers")
 
 __all__ = [
-    "LOCK_FILE", "METRIC_COLUMNS", "OUT_OF_BOUNDS_COLUMN", "RUN_FILES", "RUN_FILE_PATTERNS", "VALUE_METRICS", "WATCHED",
-    "FolderLock", "RunFolderBusy", "WriteFailed",
+    "DIVERGED_FILE", "LOCK_FILE", "METRIC_COLUMNS",
+    "OUT_OF_BOUNDS_COLUMN", "RUN_FILES", "RUN_FILE_PATTERNS", "VALUE_METRICS", "WATCHED",
+    "FolderLock", "RunDiverged", "RunFolderBusy", "WriteFailed",
     "change_diverged_settings", "check_budget", "check_finite", "check_memory", "check_new_run", "default_out_dir",
+    "diverged_record",
     "enable_compilation_cache", "extend_budget", "finish_run", "flag_out_of_bounds", "is_finished", "live_holder",
     "load_run", "lock_holder", "lock_run_folder", "machine_memory", "memory_estimate", "metric_columns",
     "out_of_bounds_message",

@@ -1,6 +1,7 @@
 """The divergence guard's checks of a chunk's metrics: non-finite losses and norms (``check_finite``) and value
 estimates outside the bounds every discounted return of the env lies in (``value_bounds_of``, ``flag_out_of_bounds``,
-``out_of_bounds_message``). The run loop (``jaxmac.runs.loop``) stops a run they name, keeping its last good checkpoint.
+``out_of_bounds_message``). The run loop (``jaxmac.runs.loop``) stops a run they name (``RunDiverged``), keeping its last
+good checkpoint and writing ``diverged.json`` (``diverged_record``).
 """
 
 from __future__ import annotations
@@ -15,6 +16,26 @@ WATCHED = ("loss", "grad_norm", "param_norm")
 # must stay inside the env's value bounds (``value_bounds``); the divergence guard watches them.
 VALUE_METRICS = ("q_tot_mean", "cen_q_mean", "dec_q_mean")
 OUT_OF_BOUNDS_COLUMN = "value_out_of_bounds"
+DIVERGED_FILE = "diverged.json"  # in a run folder the guard stopped: what diverged, the chunk, the last good checkpoint
+
+
+class RunDiverged(RuntimeError):
+    """The divergence guard stopped a run: a metric went non-finite or a value estimate left the env's bounds. The
+    run folder keeps ``diverged.json`` and its last good checkpoint; an exact resume would diverge again, so only a
+    resume with other settings (``jaxmac train --resume RUN --set ...``) continues it."""
+
+
+def diverged_record(run_dir: str) -> dict | None:
+    """The guard's record of the run folder ``run_dir`` (``problem``, ``kind``, ``chunk``, ``last_good_checkpoint``),
+    or None when the run did not diverge (or was resumed since with other settings)."""
+    import json
+    import os
+
+    path = os.path.join(run_dir, DIVERGED_FILE)
+    if not os.path.exists(path):
+        return None
+    with open(path) as f:
+        return json.load(f)
 
 
 def check_finite(metrics: dict[str, np.ndarray], seed_ids: list[int], first_round: int) -> str | None:

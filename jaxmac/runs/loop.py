@@ -27,7 +27,9 @@ from jaxmac.runs.checkpoints import (
     start_point,
 )
 from jaxmac.runs.divergence import (
+    DIVERGED_FILE,
     OUT_OF_BOUNDS_COLUMN,
+    RunDiverged,
     check_finite,
     flag_out_of_bounds,
     out_of_bounds_message,
@@ -264,7 +266,7 @@ def settings_keeping_shapes(out_dir: str, meta: dict, assignments: list[str], wh
 def _changed_settings(out_dir: str, meta: dict, assignments: list[str]) -> dict:
     """``meta`` with ``assignments`` (``--set`` strings) applied to a diverged run, validated against its checkpoint
     (the training state must keep its shapes); nothing written."""
-    if not os.path.exists(os.path.join(out_dir, "diverged.json")):
+    if not os.path.exists(os.path.join(out_dir, DIVERGED_FILE)):
         raise ValueError(f"{out_dir} did not diverge: --resume continues a run as it was configured "
                          "(--set is only for a diverged run; jaxmac fork starts a new run from a checkpoint with "
                          "other settings)")
@@ -292,14 +294,14 @@ def change_diverged_settings(out_dir: str, assignments: list[str]) -> None:
     with lock_run_folder(out_dir, "train --resume --set") if os.path.isdir(out_dir) else _no_lock():
         meta = _changed_settings(out_dir, read_meta(out_dir, trainable=True), assignments)
         write_json_atomic(os.path.join(out_dir, "config.json"), meta)
-        os.replace(os.path.join(out_dir, "diverged.json"), os.path.join(out_dir, "diverged.previous.json"))
+        os.replace(os.path.join(out_dir, DIVERGED_FILE), os.path.join(out_dir, "diverged.previous.json"))
 
 
 def _record(out_dir: str, start: Start) -> list[str]:
     """What of a run's record a start over would erase: metrics rows, summaries, a checkpoint once written."""
     found = []
     rows = len(start.metrics.rows)
-    diverged_before_any_checkpoint = (os.path.exists(os.path.join(out_dir, "diverged.json"))
+    diverged_before_any_checkpoint = (os.path.exists(os.path.join(out_dir, DIVERGED_FILE))
                                       and not os.path.exists(os.path.join(out_dir, "progress.json")))
     if rows and not diverged_before_any_checkpoint:
         found.append(f"{rows} rows of metrics.csv")
@@ -357,7 +359,7 @@ def resume_run(out_dir: str, checkpoint_seconds: float = 120.0, progress: bool =
         if new_meta != meta:
             write_json_atomic(os.path.join(out_dir, "config.json"), new_meta)
         if assignments:
-            os.replace(os.path.join(out_dir, "diverged.json"), os.path.join(out_dir, "diverged.previous.json"))
+            os.replace(os.path.join(out_dir, DIVERGED_FILE), os.path.join(out_dir, "diverged.previous.json"))
         _set_aside_early_summary(out_dir, start.chunk < programs.trainer.total_chunks)
         drop_checkpoints_after(out_dir, start)
         wall = _wall_seconds(out_dir) if start.chunk else 0.0
@@ -415,15 +417,15 @@ def _loop(programs, state, chunk, out_dir, meta, checkpoint_seconds, progress, s
                 # the diverged chunk are written to show where it happened (a resume drops them).
                 append_chunks(metrics_path, pending, seed_ids, advice)
                 last_good = mngr.latest_step()
-                write_json_atomic(os.path.join(out_dir, "diverged.json"), {
+                write_json_atomic(os.path.join(out_dir, DIVERGED_FILE), {
                     "problem": problem or outside, "kind": "non-finite" if problem else "value out of bounds",
                     "chunk": chunk, "last_good_checkpoint": last_good})
                 kept = (f"{out_dir} keeps its last good checkpoint (chunk {last_good})" if last_good is not None else
                         f"{out_dir} has no checkpoint from before it (resuming starts the run again)")
                 what = f"training diverged at {problem}" if problem else (
                     f"the value estimate diverged at {outside} (set divergence_guard=false to train on regardless)")
-                raise RuntimeError(f"{what}; stopped. {kept}: continue with other settings, e.g. "
-                                   f"jaxmac train --resume {out_dir} --set lr=...")
+                raise RunDiverged(f"{what}; stopped. {kept}: continue with other settings, e.g. "
+                                  f"jaxmac train --resume {out_dir} --set lr=...")
             chunk += 1
             done_here += 1
             evals = metrics["eval_disc_return"]

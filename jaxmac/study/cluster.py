@@ -41,12 +41,13 @@ import tempfile
 import time
 import uuid
 
-from jaxmac.study.sweep import ATTEMPTS_FILE, Cell, cell_status, estimate_seconds, run_cell
+from jaxmac.runs.divergence import DIVERGED_FILE
+from jaxmac.study.sweep import ATTEMPTS_FILE, Cell, cell_status, diverged_text, estimate_seconds, run_cell
 
 EXECUTOR = "ray"
-# what a cell trained without the sweep folder sends back: the run folder less its checkpoints (summary.json last:
-# it is what makes a cell finished)
-RETURNED_FILES = ("config.json", "metrics.csv", "curve.png", ATTEMPTS_FILE, "summary.json")
+# what a cell trained without the sweep folder sends back: the run folder less its checkpoints (summary.json, or
+# diverged.json where the divergence guard stopped it, last: it is what makes a cell finished, or diverged)
+RETURNED_FILES = ("config.json", "metrics.csv", "curve.png", ATTEMPTS_FILE, DIVERGED_FILE, "summary.json")
 MARKER_PREFIX = ".ray-driver-"  # + a token per driver: the file a task looks for to know it sees the sweep folder
 SCRATCH_ENV = "JAXMAC_RAY_SCRATCH"
 
@@ -187,8 +188,8 @@ def write_returned(out_dir: str, cell: Cell, files: dict[str, bytes]) -> None:
     the folder's lock; summary.json last; the task's attempt lines appended to the folder's own)."""
     from jaxmac.runs import RunFolderBusy, lock_run_folder
 
-    if "summary.json" not in files:
-        raise RunFolderBusy(f"{cell.path}: the task returned no summary.json")
+    if "summary.json" not in files and DIVERGED_FILE not in files:
+        raise RunFolderBusy(f"{cell.path}: the task returned neither summary.json nor {DIVERGED_FILE}")
     path = os.path.join(out_dir, cell.path)
     with lock_run_folder(path, "sweep --cluster ray (writing a returned cell)"):
         if cell_status(out_dir, cell) == "done":
@@ -297,6 +298,9 @@ def run_sweep_ray(cells: list[Cell], out_dir: str, devices: int | None = None, p
         elif statuses[cell.path] == "done":
             say(f"{cell.path}: done")
             results[cell.path] = "skipped"
+        elif statuses[cell.path] == "diverged":
+            say(f"{cell.path}: diverged, not rerun ({diverged_text(os.path.join(out_dir, cell.path))})")
+            results[cell.path] = "diverged"
     todo = [c for c in cells if statuses.get(c.path) in ("new", "interrupted", "shorter")]
     if not todo:
         return results

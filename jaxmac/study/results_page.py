@@ -183,7 +183,8 @@ def _episodes_text(cell) -> str:
 def progress_text(ranges, scenario: str, method: str, rates: dict | None) -> str:
     """What a cell's unfinished seed ranges have run ("14,208 of 120,000 episodes per seed (seeds 0–1), …") and the
     core-hours they still cost: at the rate each range has trained at so far (``own_rate``), else at the rate
-    measured for the method (``jaxmac calibrate``)."""
+    measured for the method (``jaxmac calibrate``). A range the divergence guard stopped says so, with what
+    diverged, and costs nothing more (the sweep does not rerun it)."""
     parts, seconds, measured, unknown = [], 0.0, set(), False
     try:
         method_obj = method_by_name(method)
@@ -191,7 +192,12 @@ def progress_text(ranges, scenario: str, method: str, rates: dict | None) -> str
         method_obj = None
     for r in ranges:
         first = seed_range(r.folder)[0]
-        parts.append(f"{r.episodes:,} of {r.budget:,} episodes per seed (seeds {first}–{first + r.seeds - 1})")
+        seeds = f"seeds {first}–{first + r.seeds - 1}"
+        if r.diverged is not None:  # a result, not a run still to finish: the sweep does not rerun it
+            parts.append(f"**diverged** at {r.episodes:,} of {r.budget:,} episodes per seed ({seeds}; the "
+                         f"divergence guard stopped it: {r.diverged})")
+            continue
+        parts.append(f"{r.episodes:,} of {r.budget:,} episodes per seed ({seeds})")
         left = r.seeds * max(r.budget - r.episodes, 0)
         if r.rate is not None:
             seconds += left / r.rate
@@ -311,6 +317,8 @@ def scenario_table(results, experiment: str, scenario: str, protocol: str | None
             why = _not_run_reason(protocol, m.name, scenario)
             if why:
                 status = f"not run: {why}"
+            elif ranges and all(r.diverged is not None for r in ranges):
+                status = progress_text(ranges, scenario, m.name, rates)
             elif ranges:
                 status = f"not finished yet: {progress_text(ranges, scenario, m.name, rates)}"
             elif protocol in PROTOCOLS:
@@ -622,7 +630,8 @@ def header_lines(sweep_dir: str, results, experiments: list[str], protocol: str 
         lines += [f"- {e}" for e in ended] + [""]
     running = sorted(key for key in (progress or {}) if key in wanted)
     if running:
-        lines += ["**Not finished yet** (running or interrupted; `jaxmac sweep` resumes them):", ""]
+        lines += ["**Not finished yet** (running or interrupted, which `jaxmac sweep` resumes, or stopped by the "
+                  "divergence guard, which it does not rerun):", ""]
         lines += [f"- {s}/{m}: {progress_text(progress[(s, m)], s, m, rates)}" for s, m in running] + [""]
     not_run = [e for e in experiments if not _has_finished_cell(results, e, protocol=protocol)]
     if not_run:

@@ -25,6 +25,7 @@ import re
 import numpy as np
 
 from jaxmac.plotting import read_eval_curves
+from jaxmac.runs.divergence import diverged_record
 from jaxmac.scenarios import CEILINGS
 
 FINAL_POINTS = 10  # the final return averages a run's last this many evaluations
@@ -178,6 +179,7 @@ class RangeProgress:
     episodes: int  # training episodes per seed in its metrics.csv so far (the least over its seeds; 0 = none yet)
     budget: int  # training episodes per seed it is configured for
     rate: float | None = None  # seed-episodes per core-second it has trained at so far (``own_rate``); None: unknown
+    diverged: str | None = None  # what the divergence guard stopped (``diverged.json``'s problem); None: it did not
 
 
 def trained_episodes(run_dir: str, seeds: int) -> int:
@@ -217,7 +219,8 @@ def own_rate(run_dir: str) -> float | None:
 
 def load_progress(sweep_dir: str) -> dict[tuple[str, str], list[RangeProgress]]:
     """Every seed range of a sweep folder that has a run folder (its ``config.json``) but no ``summary.json`` yet,
-    per (scenario, method): what a results page reports of cells still running or interrupted."""
+    per (scenario, method): what a results page reports of cells still running, interrupted, or stopped by the
+    divergence guard."""
     progress: dict[tuple[str, str], list[RangeProgress]] = {}
     for scenario, method, method_dir in method_folders(sweep_dir):
         for d in seed_range_folders(method_dir, finished=False):
@@ -226,8 +229,10 @@ def load_progress(sweep_dir: str) -> dict[tuple[str, str], list[RangeProgress]]:
                 continue
             first, end = seed_range(d)
             episodes = trained_episodes(run, end - first)
+            record = diverged_record(run)
             progress.setdefault((scenario, method), []).append(
-                RangeProgress(d, end - first, episodes, planned_episodes(run, {"episodes": 0}), own_rate(run)))
+                RangeProgress(d, end - first, episodes, planned_episodes(run, {"episodes": 0}), own_rate(run),
+                              None if record is None else record["problem"]))
     return progress
 
 

@@ -27,6 +27,7 @@ from typing import Any
 
 from jaxmac.config import TrainConfig
 from jaxmac.presets import scenario_config
+from jaxmac.runs.divergence import diverged_record
 from jaxmac.runs.early_end import SettledRule
 from jaxmac.scenarios import BOXPUSHING, FAMILIES, OVERCOOKED, WAREHOUSE, family
 from jaxmac.study.stats import return_column
@@ -299,8 +300,10 @@ def fit_to_existing(cells: list[Cell], out_dir: str) -> list[Cell]:
 
 
 def cell_status(out_dir: str, cell: Cell) -> str:
-    """'done' (a summary), 'interrupted' (a run folder without one), 'shorter' (the cell's run trained to a smaller
-    budget, finished or not: the sweep extends it, as ``jaxmac train --resume RUN --episodes N`` would) or 'new'. A
+    """'done' (a summary), 'diverged' (the divergence guard stopped its run: ``diverged.json``; an exact resume would
+    diverge again, so the sweep does not rerun it), 'interrupted' (a run folder without either), 'shorter' (the cell's
+    run trained to a smaller budget, finished or not: the sweep extends it, as ``jaxmac train --resume RUN --episodes
+    N`` would) or 'new'. A
     folder that holds a run of another configuration (other settings, a larger budget or other seeds) is refused,
     naming what differs: cells are shared between experiments by path, so a path must always mean the same run."""
     from jaxmac.runs import read_meta
@@ -322,7 +325,15 @@ def cell_status(out_dir: str, cell: Cell) -> str:
     if differ:
         raise ValueError(f"{path} holds another run than the sweep's cell ({'; '.join(differ)}); move it away or use "
                          "another --out")
-    return "done" if os.path.exists(os.path.join(path, "summary.json")) else "interrupted"
+    if os.path.exists(os.path.join(path, "summary.json")):
+        return "done"
+    return "diverged" if diverged_record(path) is not None else "interrupted"
+
+
+def diverged_text(path: str) -> str:
+    """What the divergence guard stopped in the cell folder ``path`` and after which chunk, in a line."""
+    record = diverged_record(path)
+    return f"stopped by the divergence guard after chunk {record['chunk']}: {record['problem']}"
 
 
 def load_rates(path: str) -> dict[str, dict]:
@@ -370,37 +381,45 @@ def run_sweep(cells: list[Cell], out_dir: str, devices: int = 1, progress: bool 
 def run_cell(cell: Cell, out_dir: str, devices: int = 1, progress: bool = True, log=print,
              checkpoint_seconds: float = 120.0, prefix: str = "", where: dict | None = None) -> str:
     """Train ``cell`` into ``out_dir`` (resume it if interrupted, extend it to the cell's budget if it ran a smaller
-    one): 'trained', 'resumed', 'extended', 'skipped' (done already) or 'busy' (another live process holds it). Each
+    one): 'trained', 'resumed', 'extended', 'skipped' (done already), 'diverged' (the divergence guard stopped it,
+    now or before: the cell's result, kept as it is and not rerun) or 'busy' (another live process holds it). Each
     attempt is recorded in the cell's ``attempts.jsonl`` (``where``: the executor's own fields, e.g. a Ray node id;
     default: this process, ``executor: embedded``). The one code path of a cell, in a sweep process (``run_sweep``)
     or a Ray task (``jaxmac.study.cluster``)."""
-    from jaxmac.runs import resume_run, train_run
+    from jaxmac.runs import RunDiverged, resume_run, train_run
 
     status = cell_status(out_dir, cell)
     path = os.path.join(out_dir, cell.path)
     if status == "done":
         log(f"{prefix}{cell.path}: done")
         return "skipped"
+    if status == "diverged":
+        log(f"{prefix}{cell.path}: diverged, not rerun ({diverged_text(path)})")
+        return "diverged"
     lock = claim_cell(path)
     if not lock:
         log(f"{prefix}{cell.path}: being trained by another sweep process")
         return "busy"
     try:
         status = cell_status(out_dir, cell)  # again, ours now: another process may have finished it meanwhile
-        if status == "done":
-            log(f"{prefix}{cell.path}: done")
-            return "skipped"
+        if status in ("done", "diverged"):
+            log(f"{prefix}{cell.path}: {status}")
+            return "skipped" if status == "done" else "diverged"
         log(f"{prefix}{cell.path}: {status}")
         action = {"interrupted": "resume", "shorter": "extend"}.get(status, "train")
         record_attempt(path, action, devices, where)
         end_early = None if cell.end_early is None else cell.end_early.reason
-        if status in ("interrupted", "shorter"):
-            resume_run(path, progress=progress, devices=devices, checkpoint_seconds=checkpoint_seconds,
-                       end_early=end_early, episodes=cell.episodes if status == "shorter" else None)
-            return "resumed" if status == "interrupted" else "extended"
-        train_run(cell.config(), cell.seeds, path, seed_offset=cell.first_seed, progress=progress,
-                  devices=devices, checkpoint_seconds=checkpoint_seconds, end_early=end_early)
-        return "trained"
+        try:
+            if status in ("interrupted", "shorter"):
+                resume_run(path, progress=progress, devices=devices, checkpoint_seconds=checkpoint_seconds,
+                           end_early=end_early, episodes=cell.episodes if status == "shorter" else None)
+                return "resumed" if status == "interrupted" else "extended"
+            train_run(cell.config(), cell.seeds, path, seed_offset=cell.first_seed, progress=progress,
+                      devices=devices, checkpoint_seconds=checkpoint_seconds, end_early=end_early)
+            return "trained"
+        except RunDiverged:  # a result of the cell's method and settings, not a failure of the sweep: go on
+            log(f"{prefix}{cell.path}: diverged ({diverged_text(path)})")
+            return "diverged"
     finally:
         lock.release()
 
