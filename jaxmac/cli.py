@@ -96,9 +96,9 @@ def cmd_train(args) -> int:
         print(f"finished at {summary['stopped_at']} of {summary['budget']} episodes per seed")
         out = args.finish
     elif args.resume:
-        import os
+        from jaxmac.runs import diverged_record
 
-        diverged = os.path.exists(os.path.join(args.resume, "diverged.json"))
+        diverged = diverged_record(args.resume) is not None
         ignored = [flag for flag, given in (("--scenario", args.scenario is not None), ("--seeds", args.seeds is not None),
                                             ("--preset", args.preset is not None),
                                             ("--set", bool(args.set) and not diverged), ("--tiny", args.tiny), ("--paper", args.paper),

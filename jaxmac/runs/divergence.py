@@ -6,6 +6,9 @@ good checkpoint and writing ``diverged.json`` (``diverged_record``).
 
 from __future__ import annotations
 
+import json
+import os
+
 import numpy as np
 
 from jaxmac.config import TrainConfig
@@ -28,9 +31,6 @@ class RunDiverged(RuntimeError):
 def diverged_record(run_dir: str) -> dict | None:
     """The guard's record of the run folder ``run_dir`` (``problem``, ``kind``, ``chunk``, ``last_good_checkpoint``),
     or None when the run did not diverge (or was resumed since with other settings)."""
-    import json
-    import os
-
     path = os.path.join(run_dir, DIVERGED_FILE)
     if not os.path.exists(path):
         return None

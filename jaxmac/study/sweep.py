@@ -303,9 +303,9 @@ def cell_status(out_dir: str, cell: Cell) -> str:
     """'done' (a summary), 'diverged' (the divergence guard stopped its run: ``diverged.json``; an exact resume would
     diverge again, so the sweep does not rerun it), 'interrupted' (a run folder without either), 'shorter' (the cell's
     run trained to a smaller budget, finished or not: the sweep extends it, as ``jaxmac train --resume RUN --episodes
-    N`` would) or 'new'. A
-    folder that holds a run of another configuration (other settings, a larger budget or other seeds) is refused,
-    naming what differs: cells are shared between experiments by path, so a path must always mean the same run."""
+    N`` would) or 'new'. A folder that holds a run of another configuration (other settings, a larger budget or other
+    seeds) is refused, naming what differs: cells are shared between experiments by path, so a path must always mean
+    the same run."""
     from jaxmac.runs import read_meta
 
     path = os.path.join(out_dir, cell.path)
@@ -388,23 +388,30 @@ def run_cell(cell: Cell, out_dir: str, devices: int = 1, progress: bool = True, 
     or a Ray task (``jaxmac.study.cluster``)."""
     from jaxmac.runs import RunDiverged, resume_run, train_run
 
-    status = cell_status(out_dir, cell)
     path = os.path.join(out_dir, cell.path)
-    if status == "done":
-        log(f"{prefix}{cell.path}: done")
-        return "skipped"
-    if status == "diverged":
-        log(f"{prefix}{cell.path}: diverged, not rerun ({diverged_text(path)})")
-        return "diverged"
+
+    def settled(status: str) -> str | None:
+        """The result of a cell with nothing to run, logged ('skipped' when done, 'diverged'); None otherwise."""
+        if status == "done":
+            log(f"{prefix}{cell.path}: done")
+            return "skipped"
+        if status == "diverged":
+            log(f"{prefix}{cell.path}: diverged, not rerun ({diverged_text(path)})")
+            return "diverged"
+        return None
+
+    result = settled(cell_status(out_dir, cell))
+    if result:
+        return result
     lock = claim_cell(path)
     if not lock:
         log(f"{prefix}{cell.path}: being trained by another sweep process")
         return "busy"
     try:
         status = cell_status(out_dir, cell)  # again, ours now: another process may have finished it meanwhile
-        if status in ("done", "diverged"):
-            log(f"{prefix}{cell.path}: {status}")
-            return "skipped" if status == "done" else "diverged"
+        result = settled(status)
+        if result:
+            return result
         log(f"{prefix}{cell.path}: {status}")
         action = {"interrupted": "resume", "shorter": "extend"}.get(status, "train")
         record_attempt(path, action, devices, where)
