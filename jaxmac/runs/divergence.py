@@ -20,12 +20,20 @@ WATCHED = ("loss", "grad_norm", "param_norm")
 VALUE_METRICS = ("q_tot_mean", "cen_q_mean", "dec_q_mean")
 OUT_OF_BOUNDS_COLUMN = "value_out_of_bounds"
 DIVERGED_FILE = "diverged.json"  # in a run folder the guard stopped: what diverged, the chunk, the last good checkpoint
+# The record of a diverged run that was resumed with other settings: kept beside the run, no longer a stop.
+DIVERGED_PREVIOUS_FILE = "diverged.previous.json"
 
 
 class RunDiverged(RuntimeError):
     """The divergence guard stopped a run: a metric went non-finite or a value estimate left the env's bounds. The
     run folder keeps ``diverged.json`` and its last good checkpoint; an exact resume would diverge again, so only a
     resume with other settings (``jaxmac train --resume RUN --set ...``) continues it."""
+
+
+def set_aside_diverged(run_dir: str) -> None:
+    """Rename the run folder ``run_dir``'s ``diverged.json`` to ``diverged.previous.json``: the run goes on with other
+    settings, so it is no longer stopped, and what stopped it stays on record."""
+    os.replace(os.path.join(run_dir, DIVERGED_FILE), os.path.join(run_dir, DIVERGED_PREVIOUS_FILE))
 
 
 def diverged_record(run_dir: str) -> dict | None:

@@ -16,12 +16,13 @@ from typing import Any
 from envs_jax.validation import is_integer
 from jaxmac.algos import registry  # noqa: F401  (registers every learner's settings, which config.json names)
 from jaxmac.config import TrainConfig
+from jaxmac.runs.divergence import DIVERGED_FILE, DIVERGED_PREVIOUS_FILE
 
 # --- one owner per run folder ------------------------------------------------------------------------------------
 
 LOCK_FILE = "run.lock"
 # The files that make a folder a run's (``train_run`` refuses a folder holding any of them).
-RUN_FILES = ("config.json", "metrics.csv", "summary.json", "progress.json", "diverged.json", "diverged.previous.json",
+RUN_FILES = ("config.json", "metrics.csv", "summary.json", "progress.json", DIVERGED_FILE, DIVERGED_PREVIOUS_FILE,
              "curve.png", "checkpoints")
 RUN_FILE_PATTERNS = ("summary.stopped-at-*.json",)
 

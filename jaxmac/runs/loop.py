@@ -33,6 +33,7 @@ from jaxmac.runs.divergence import (
     check_finite,
     flag_out_of_bounds,
     out_of_bounds_message,
+    set_aside_diverged,
     value_bounds_of,
 )
 from jaxmac.runs.folders import (
@@ -294,7 +295,7 @@ def change_diverged_settings(out_dir: str, assignments: list[str]) -> None:
     with lock_run_folder(out_dir, "train --resume --set") if os.path.isdir(out_dir) else _no_lock():
         meta = _changed_settings(out_dir, read_meta(out_dir, trainable=True), assignments)
         write_json_atomic(os.path.join(out_dir, "config.json"), meta)
-        os.replace(os.path.join(out_dir, DIVERGED_FILE), os.path.join(out_dir, "diverged.previous.json"))
+        set_aside_diverged(out_dir)
 
 
 def _record(out_dir: str, start: Start) -> list[str]:
@@ -359,7 +360,7 @@ def resume_run(out_dir: str, checkpoint_seconds: float = 120.0, progress: bool =
         if new_meta != meta:
             write_json_atomic(os.path.join(out_dir, "config.json"), new_meta)
         if assignments:
-            os.replace(os.path.join(out_dir, DIVERGED_FILE), os.path.join(out_dir, "diverged.previous.json"))
+            set_aside_diverged(out_dir)
         _set_aside_early_summary(out_dir, start.chunk < programs.trainer.total_chunks)
         drop_checkpoints_after(out_dir, start)
         wall = _wall_seconds(out_dir) if start.chunk else 0.0
