@@ -164,6 +164,24 @@ def test_a_folder_of_another_run_is_refused_naming_what_differs(tmp_path, monkey
         cell_status(str(tmp_path), other)
 
 
+def test_a_run_started_under_another_divergence_guard_is_the_cells_and_resumes_under_its_own(tmp_path, monkeypatch):
+    calls, lines = [], []
+    _fake_runs(monkeypatch, calls)
+    cells = plan("ablation", "smoke", only="overcooked-B/tomacvf/")
+    run_sweep(cells, str(tmp_path), log=lambda *_: None)
+    watched = type(cells[0])(**{**cells[0].__dict__, "method": dataclasses.replace(
+        cells[0].method, overrides=cells[0].method.overrides + (("divergence_margin", 0.5),
+                                                                  ("divergence_guard", False)))})
+    assert cell_status(str(tmp_path), watched) == "done"  # the guard never changes what the run computed
+    os.remove(os.path.join(str(tmp_path), cells[0].path, "summary.json"))  # killed before it finished
+    calls.clear()
+    assert run_sweep([watched], str(tmp_path), log=lines.append) == {watched.path: "resumed"}
+    margin = cells[0].config().divergence_margin
+    assert f"[1/1] {watched.path}: goes on under the divergence guard its run started with (divergence_guard=True " \
+           f"there, False here; divergence_margin={margin!r} there, 0.5 here)" in lines
+    assert calls == [("resume", os.path.join(str(tmp_path), cells[0].path))]  # resumed exactly: its own config.json
+
+
 def test_a_cell_whose_run_trained_a_smaller_budget_is_extended(tmp_path, monkeypatch):
     # e.g. a run trained to 80K episodes where the protocol's cell asks for 100K: resumed with the larger budget
     calls = []

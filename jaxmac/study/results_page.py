@@ -558,7 +558,7 @@ def protocol_of_configs(sweep_dir: str, results) -> str | None:
                 continue
             try:
                 with open(path) as f:
-                    held = TrainConfig.from_dict(json.load(f)["config"]).flat_dict()
+                    held = TrainConfig.from_dict(json.load(f)["config"]).run_settings()
             except (KeyError, TypeError, ValueError):  # a configuration of an older jaxmac
                 return None
             checked += 1
@@ -569,7 +569,7 @@ def protocol_of_configs(sweep_dir: str, results) -> str | None:
                     continue
                 budget = proto.budget(scenario, method.config(scenario, proto.tiny).episodes)
                 wanted = Cell("", method, scenario, 0, 1, budget, proto.tiny, proto.scale_schedules).config()
-                if any(held.get(k) != v for k, v in wanted.flat_dict().items()):
+                if any(held.get(k) != v for k, v in wanted.run_settings().items()):
                     candidates.discard(name)
             if not candidates:
                 return None

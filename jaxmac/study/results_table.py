@@ -26,10 +26,10 @@ from jaxmac.study.stats import episodes_to_fraction, final_returns, load_run_res
 
 def _changed_settings(run_dir: pathlib.Path, scenario: str) -> str:
     """``key=value`` for every config field that differs from the scenario's defaults of the run's algorithm
-    (episodes and length_buckets aside)."""
+    (episodes, length_buckets, packing and the divergence guard's settings aside: ``TrainConfig.run_settings``)."""
     config = TrainConfig.from_dict(json.loads((run_dir / "config.json").read_text())["config"])
-    resolved = config.flat_dict()
-    defaults = scenario_config(scenario, config.algorithm).flat_dict()
+    resolved = config.run_settings()
+    defaults = scenario_config(scenario, config.algorithm).run_settings()
     ignored = {"episodes", "length_buckets", "packing"}  # the budget is its own column; these change the speed only
     changed = [f"{k}={v}" for k, v in resolved.items() if k in defaults and k not in ignored and defaults[k] != v]
     return ", ".join(changed) or "defaults"

@@ -25,7 +25,7 @@ import dataclasses
 import os
 from typing import Any
 
-from jaxmac.config import TrainConfig
+from jaxmac.config import WATCH_SETTINGS, TrainConfig
 from jaxmac.presets import scenario_config
 from jaxmac.runs.divergence import diverged_record
 from jaxmac.runs.early_end import SettledRule
@@ -305,7 +305,8 @@ def cell_status(out_dir: str, cell: Cell) -> str:
     run trained to a smaller budget, finished or not: the sweep extends it, as ``jaxmac train --resume RUN --episodes
     N`` would) or 'new'. A folder that holds a run of another configuration (other settings, a larger budget or other
     seeds) is refused, naming what differs: cells are shared between experiments by path, so a path must always mean
-    the same run."""
+    the same run. The divergence guard's settings (``WATCH_SETTINGS``) are not compared: they never change what a run
+    computes, so a run started under another guard is the cell's (``watch_differences`` names the difference)."""
     from jaxmac.runs import read_meta
 
     path = os.path.join(out_dir, cell.path)
@@ -313,8 +314,8 @@ def cell_status(out_dir: str, cell: Cell) -> str:
     if not os.path.exists(config_path):
         return "new"
     meta = read_meta(path)
-    held = TrainConfig.from_dict(meta["config"]).flat_dict()
-    wanted = cell.config().flat_dict()
+    held = TrainConfig.from_dict(meta["config"]).run_settings()
+    wanted = cell.config().run_settings()
     differ = [f"{k}: {held.get(k)!r} there, {v!r} here" for k, v in wanted.items() if held.get(k) != v]
     if (meta["seeds"], meta["seed_offset"]) != (cell.seeds, cell.first_seed):
         differ.append(f"seeds: {meta['seed_offset']}..{meta['seed_offset'] + meta['seeds'] - 1} there, "
@@ -328,6 +329,16 @@ def cell_status(out_dir: str, cell: Cell) -> str:
     if os.path.exists(os.path.join(path, "summary.json")):
         return "done"
     return "diverged" if diverged_record(path) is not None else "interrupted"
+
+
+def watch_differences(path: str, cell: Cell) -> str:
+    """The settings that only watch a run (``WATCH_SETTINGS``) in which the run folder ``path`` differs from the
+    cell, as "name=there there, here here" items ('' if none): such a folder holds the cell's run all the same."""
+    from jaxmac.runs import read_meta
+
+    held = TrainConfig.from_dict(read_meta(path)["config"]).flat_dict()
+    wanted = cell.config().flat_dict()
+    return "; ".join(f"{k}={held[k]!r} there, {wanted[k]!r} here" for k in WATCH_SETTINGS if held[k] != wanted[k])
 
 
 def diverged_text(path: str) -> str:
@@ -418,6 +429,9 @@ def run_cell(cell: Cell, out_dir: str, devices: int = 1, progress: bool = True, 
         end_early = None if cell.end_early is None else cell.end_early.reason
         try:
             if status in ("interrupted", "shorter"):
+                watched = watch_differences(path, cell)
+                if watched:  # the same run (WATCH_SETTINGS), resumed exactly: under the guard it started with
+                    log(f"{prefix}{cell.path}: goes on under the divergence guard its run started with ({watched})")
                 resume_run(path, progress=progress, devices=devices, checkpoint_seconds=checkpoint_seconds,
                            end_early=end_early, episodes=cell.episodes if status == "shorter" else None)
                 return "resumed" if status == "interrupted" else "extended"
