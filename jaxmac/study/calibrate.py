@@ -139,8 +139,9 @@ def rate_from_run(method_name: str, scenario: str, run_dir: str) -> dict:
     with open(os.path.join(run_dir, "summary.json")) as f:
         summary = json.load(f)
     wanted = method_by_name(method_name).config(scenario).run_settings()
-    differ = {k: (held.run_settings().get(k), v) for k, v in wanted.items()
-              if held.run_settings().get(k) != v and k not in ("episodes", "length_buckets") + SCHEDULE_SETTINGS}
+    trained = held.run_settings()
+    differ = {k: (trained.get(k), v) for k, v in wanted.items()
+              if trained.get(k) != v and k not in ("episodes", "length_buckets") + SCHEDULE_SETTINGS}
     if differ:
         raise ValueError(f"{run_dir} was not trained with {method_name}'s settings on {scenario}: {differ}")
     note = "" if held.length_buckets == wanted["length_buckets"] else \
