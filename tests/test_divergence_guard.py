@@ -165,6 +165,9 @@ def test_the_defaults_are_the_learning_settings_and_the_paper_is_one_flag_away()
     for name in ("overcooked-A", "overcooked-B", "overcooked-C"):
         config = scenario_config(name)
         assert (config.target_update_episodes, config.updates_per_round) == (128, 4)
+    assert scenario_config("overcooked-C").target_polyak == 0.05  # hard copies on A and B
+    paper_c = scenario_config("overcooked-C", paper=True, overrides=dict(target_update_episodes=0))
+    assert scenario_config("overcooked-A").target_polyak == paper_c.target_polyak == 0
     for name in ("warehouse-A", "warehouse-E"):
         assert scenario_config(name).discount == 0.99
         assert scenario_config(name, paper=True).discount == 0.0  # the env's own: 1
