@@ -28,7 +28,7 @@ def timeline_module():
 def test_a_hand_made_episode(timeline_module):
     h, n = 12, 2
     rewards = np.full(h, -0.1, np.float32)
-    rewards[[2, 4]] = 9.9  # chops at steps 3 and 5
+    rewards[[2, 4]] = 9.9, 19.9  # a chop at step 3, two at step 5
     rewards[9] = 199.9  # delivery at step 10, the episode's end
     done = np.zeros(h, bool)
     done[9] = True
@@ -38,7 +38,7 @@ def test_a_hand_made_episode(timeline_module):
     chosen[3, 1] = True  # ... chosen once, at step 4
     mac[10, 0], chosen[10, 0] = 2, True  # a choice after the episode's end is not counted
     out = timeline_module.timeline(rewards, done, chosen, mac, NAMES)
-    assert out == {"length": 10, "return": pytest.approx(float(rewards[:10].sum()), abs=0.05), "chops": [3, 5],
+    assert out == {"length": 10, "return": pytest.approx(float(rewards[:10].sum()), abs=0.05), "chops": [3, 5, 5],
                    "delivery": [10], "plating_steps": 5, "plate_fetches": [(4, "A2", "get plate 2")]}
     done[:] = False
     rewards[9] = -0.1

@@ -35,7 +35,7 @@ def timeline(rewards: np.ndarray, done: np.ndarray, chosen: np.ndarray, mac: np.
     macro-action names (the same for every agent on Overcooked)."""
     end = int(np.argmax(done)) + 1 if done.any() else len(rewards)
     rewards = rewards[:end]
-    chops = [t + 1 for t, r in enumerate(rewards) if 5 < r < 100]
+    chops = [t + 1 for t, r in enumerate(rewards) if 5 < r < 100 for _ in range(round((r + 0.1) / 10))]  # 2 at once: 19.9
     deliveries = [t + 1 for t, r in enumerate(rewards) if r > 100]
     plates = [a for a, name in enumerate(names) if name.startswith("get plate")]
     fetches = [(t + 1, f"A{i + 1}", names[int(mac[t, i])]) for t in range(end) for i in range(mac.shape[1])
