@@ -58,7 +58,7 @@ def test_an_episode_from_timesteps(timeline_module):
 
 
 def test_a_run_of_another_env_is_refused(timeline_module, tmp_path, capsys):
-    (tmp_path / "config.json").write_text(json.dumps({"config": {"scenario": "warehouse-A"}, "seeds": 1}))
+    (tmp_path / "config.json").write_text(json.dumps({"config": {"scenario": "warehouse-A"}, "seeds": 1, "seed_offset": 0}))
     with pytest.raises(SystemExit):
         timeline_module.main([str(tmp_path)])
     assert "warehouse-A" in capsys.readouterr().err

@@ -15,8 +15,6 @@ Greedy policies and the scripted one are deterministic here, so one episode per 
 from __future__ import annotations
 
 import argparse
-import json
-import os
 
 import jax
 import jax.numpy as jnp
@@ -24,6 +22,7 @@ import numpy as np
 
 import envs_jax
 from envs_jax.overcooked.scripted import scripted_actions
+from jaxmac.runs import read_meta
 from jaxmac.runs.evaluation import play_greedy
 
 
@@ -78,11 +77,10 @@ def scripted_episode(scenario: str, key: int) -> dict:
     return episode_timeline(env, *jax.jit(play)(jax.random.key(key)))
 
 
-def learned_episodes(run_dir: str, key: int) -> list[dict]:
-    with open(os.path.join(run_dir, "config.json")) as f:
-        meta = json.load(f)
+def learned_episodes(run_dir: str, seeds: int, key: int) -> list[dict]:
+    """``timeline`` of one greedy episode of each of the run's ``seeds`` seeds, with its discounted return."""
     out = []
-    for index in range(int(meta["seeds"])):
+    for index in range(seeds):
         play = play_greedy(run_dir, seed_index=index, episodes=1, key=key)
         row = {"seed_index": index, **episode_timeline(play.env, play.reset_ts, play.traj)}
         row["disc_return"] = round(float(play.stats["disc_return"][0]), 1)
@@ -95,17 +93,18 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("runs", nargs="+", help="run folders of an Overcooked scenario, with a checkpoint")
     parser.add_argument("--key", type=int, default=0, help="the episode's key (as jaxmac eval's)")
     args = parser.parse_args(argv)
-    scenarios = set()
-    for run_dir in args.runs:
-        with open(os.path.join(run_dir, "config.json")) as f:
-            scenarios.add(json.load(f)["config"]["scenario"])
+    try:
+        metas = {run_dir: read_meta(run_dir) for run_dir in args.runs}
+    except ValueError as err:
+        parser.error(str(err))
+    scenarios = {meta["config"]["scenario"] for meta in metas.values()}
     bad = sorted(s for s in scenarios if not s.startswith("overcooked-"))
     if bad:
         parser.error(f"scenario {bad}: this analysis reads Overcooked runs only (overcooked-A, -B, -C)")
     for scenario in sorted(scenarios):
         print(f"{scenario} scripted: {scripted_episode(scenario, args.key)}")
     for run_dir in args.runs:
-        for row in learned_episodes(run_dir, args.key):
+        for row in learned_episodes(run_dir, int(metas[run_dir]["seeds"]), args.key):
             print(f"{run_dir} {row}")
 
 
