@@ -244,6 +244,18 @@ def test_cost_estimates_use_the_cells_own_rate_else_the_nearest_measured_scenari
     assert estimate_seconds(cells["boxpushing-8x8/tomacvf"], rates)[1] == "tomacvf@boxpushing-6x6"
     assert estimate_seconds(cells["overcooked-A/mac_cac"], rates)[1] == "mac_cac@overcooked-B"
     assert estimate_seconds(cells["overcooked-A/mac_iaicc"], rates) is None  # not measured anywhere
+    # a whole run's rate beats a first-chunks rate (episodes at epsilon ~ 1 last to the time limit), even the cell's own
+    rates = {"mac_cac@warehouse-E": {"episodes_per_s": 9.0, "chunks": 1},
+             "mac_cac@warehouse-B": {"episodes_per_s": 300.0, "chunks": 1},
+             "mac_cac@warehouse-C": {"episodes_per_s": 220.0, "source": "a whole run"},
+             "mac_cac@warehouse-A": {"episodes_per_s": 250.0, "source": "a whole run"}}
+    cells = {c.path.split("/seeds")[0]: c for c in plan("warehouse", "full")}
+    wh_e = cells["warehouse-E/mac_cac"]
+    assert estimate_seconds(wh_e, rates) == (wh_e.seeds * wh_e.episodes / 220.0, "mac_cac@warehouse-C")
+    assert estimate_seconds(cells["warehouse-B/mac_cac"], rates)[1] == "mac_cac@warehouse-A"
+    del rates["mac_cac@warehouse-C"], rates["mac_cac@warehouse-A"]  # first chunks only: the nearest, own first
+    assert estimate_seconds(wh_e, rates)[1] == "mac_cac@warehouse-E"
+    assert estimate_seconds(cells["warehouse-C/mac_cac"], rates)[1] == "mac_cac@warehouse-B"
     assert method_by_name("tomacvf-wo-sjert").overrides[0] == ("buffer", "mac_jert")
     with pytest.raises(ValueError, match="unknown method 'qmix'.*tomacvf-qplex"):
         method_by_name("qmix")

@@ -359,18 +359,22 @@ def load_rates(path: str) -> dict[str, dict]:
 
 def estimate_seconds(cell: Cell, rates: dict[str, dict], episodes: int | None = None) -> tuple[float, str] | None:
     """Seconds of one core that ``cell`` needs (for ``episodes`` per seed; default its budget) at a measured rate
-    (seed-episodes per second), and the pair measured:
-    the cell's own (method, scenario), else the same method on the nearest measured scenario of its family (Box
-    Pushing grids by size, Overcooked and Warehouse maps by letter); None when the method was not measured there."""
-    key = f"{cell.method.name}@{cell.scenario}"
-    if key not in rates:
-        fam = family(cell.scenario)
-        order = FAMILIES[fam]
-        here = order.index(cell.scenario) if cell.scenario in order else 0
-        measured = [s for s in order if f"{cell.method.name}@{s}" in rates]
-        if not measured:
-            return None
-        key = f"{cell.method.name}@{min(measured, key=lambda s: abs(order.index(s) - here))}"
+    (seed-episodes per second), and the pair measured: the same method on the cell's scenario, else on the nearest
+    measured scenario of its family (Box Pushing grids by size, Overcooked and Warehouse maps by letter); None when
+    the method was not measured there. A whole run's rate (``jaxmac calibrate --from-sweep``/``--from-run``: an entry
+    with a ``source``) is preferred to a rate of a run's first chunks (``jaxmac calibrate``: an entry with
+    ``chunks``), wherever in the family it was measured: first chunks run at ε ≈ 1, whose episodes last to the time
+    limit, and overstate a whole run's cost several times where trained policies finish early (Warehouse's
+    actor-critics: ~6×)."""
+    fam = family(cell.scenario)
+    order = FAMILIES[fam]
+    here = order.index(cell.scenario) if cell.scenario in order else 0
+    measured = [s for s in order if f"{cell.method.name}@{s}" in rates]
+    if not measured:
+        return None
+    whole_runs = [s for s in measured if "source" in rates[f"{cell.method.name}@{s}"]]
+    nearest = min(whole_runs or measured, key=lambda s: abs(order.index(s) - here))
+    key = f"{cell.method.name}@{nearest}"
     episodes = cell.episodes if episodes is None else episodes
     return cell.seeds * episodes / rates[key]["episodes_per_s"], key
 
