@@ -182,9 +182,9 @@ def _episodes_text(cell) -> str:
 
 def progress_text(ranges, scenario: str, method: str, rates: dict | None) -> str:
     """What a cell's unfinished seed ranges have run ("14,208 of 120,000 episodes per seed (seeds 0–1), …") and the
-    core-hours they still cost: at the rate each range has trained at so far (``own_rate``), else at the rate
-    measured for the method (``jaxmac calibrate``). A range the divergence guard stopped says so, with what
-    diverged, and costs nothing more (the sweep does not rerun it)."""
+    core-hours they still cost: at the rate each range has trained at so far (``own_rate``, once it has trained ten
+    minutes), else at the rate measured for the method (``jaxmac calibrate``). A range the divergence guard stopped
+    says so, with what diverged, and costs nothing more (the sweep does not rerun it)."""
     parts, seconds, measured, unknown = [], 0.0, set(), False
     try:
         method_obj = method_by_name(method)

@@ -191,12 +191,19 @@ def trained_episodes(run_dir: str, seeds: int) -> int:
     return min(last.values()) if len(last) == seeds else 0
 
 
-def own_rate(run_dir: str) -> float | None:
+OWN_RATE_MIN_SECONDS = 600.0  # a run's own pace is trusted once it has trained this long (wall seconds, resumes summed)
+
+
+def own_rate(run_dir: str, min_seconds: float = OWN_RATE_MIN_SECONDS) -> float | None:
     """The rate an unfinished run folder has trained at so far, in seed-episodes per core-second: the episodes its
     newest checkpoint covers (``progress.json``'s chunks × rounds per chunk × parallel episodes × seeds) over the wall
     seconds they took, accumulated over resumes and compilations included, times the most devices any attempt used
-    (``attempts.jsonl``; 1 without it). None before its first checkpoint or when a file is unreadable. A better guide
-    to what the run still costs than another scenario's rate: Overcooked-C's ToMacVF ran at twice Overcooked-B's."""
+    (``attempts.jsonl``; 1 without it). A better guide to what the run still costs than another scenario's rate:
+    Overcooked-C's ToMacVF ran at twice Overcooked-B's.
+
+    None before its first checkpoint, when a file is unreadable, or while those wall seconds are under
+    ``min_seconds``: until then compilation (a minute or more per attempt) dominates them — Warehouse-E's Mac-CAC read
+    ~5.3 core-hours left after its first 640 episodes — and the callers fall back to a measured rate."""
     from jaxmac.runs.folders import read_meta, read_progress
 
     progress = read_progress(run_dir)
@@ -214,7 +221,7 @@ def own_rate(run_dir: str) -> float | None:
             devices = max([devices] + [len(json.loads(line).get("devices", [])) for line in f if line.strip()])
     except (OSError, ValueError):
         pass
-    return episodes / (wall * devices) if episodes > 0 and wall > 0 else None
+    return episodes / (wall * devices) if episodes > 0 and wall > 0 and wall >= min_seconds else None
 
 
 def load_progress(sweep_dir: str) -> dict[tuple[str, str], list[RangeProgress]]:
