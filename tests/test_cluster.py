@@ -138,20 +138,38 @@ def _a_ray_worker_of_ours(pid: int) -> bool:
         return False
 
 
-def _kill_after_the_first_checkpoint(folder, killed: list, stop: threading.Event) -> None:
-    """SIGKILL the Ray worker training ``folder`` (its pid: the cell's lock file, written by the task) once the cell
-    has saved its first checkpoint."""
+def _pause_the_worker_after_its_first_checkpoint(folder, stop: threading.Event) -> tuple[int, int] | None:
+    """SIGSTOP the Ray worker training ``folder`` (its pid: the cell's lock file, written by the task) once the cell
+    has saved its first checkpoint; returns (pid, chunks done), the worker left stopped, or None when ``stop`` is set
+    first. The worker runs in slices of ~20 ms between two looks, so it cannot finish the cell between the look that
+    sees the first checkpoint and the stop, however loaded the machine (it is stopped while we look)."""
     while not stop.is_set():
+        holder = lock_holder(str(folder))
+        pid = holder.get("pid", -1) if holder else -1
+        if not _a_ray_worker_of_ours(pid):
+            time.sleep(0.01)
+            continue
+        try:
+            os.kill(pid, signal.SIGSTOP)
+        except ProcessLookupError:  # ended between the look at the lock and the signal
+            continue
         try:
             chunks = json.loads(_read(os.path.join(folder, "progress.json")))["chunks_done"]
         except (OSError, ValueError, KeyError):
             chunks = 0
-        holder = lock_holder(str(folder)) if chunks >= 1 else None
-        if holder and _a_ray_worker_of_ours(holder.get("pid", -1)):
-            os.kill(holder["pid"], signal.SIGKILL)
-            killed.append((holder["pid"], chunks))
-            return
-        time.sleep(0.01)
+        if chunks >= 1:
+            return pid, chunks
+        os.kill(pid, signal.SIGCONT)
+        time.sleep(0.02)
+    return None
+
+
+def _kill_after_the_first_checkpoint(folder, killed: list, stop: threading.Event) -> None:
+    """SIGKILL the Ray worker training ``folder`` once the cell has saved its first checkpoint."""
+    paused = _pause_the_worker_after_its_first_checkpoint(folder, stop)
+    if paused:
+        os.kill(paused[0], signal.SIGKILL)
+        killed.append(paused)
 
 
 def test_a_worker_killed_mid_cell_is_retried_and_the_cell_resumes_to_an_uninterrupted_runs_metrics(
@@ -182,27 +200,26 @@ def test_interrupting_the_driver_cancels_the_cell_and_the_same_call_resumes_it(t
     from jaxmac.study.sweep import cell_status
 
     folder = tmp_path / LONG.path
-    inside, lines = threading.Event(), []
+    stop, paused, lines = threading.Event(), [], []
 
     def ctrl_c_after_the_first_checkpoint():
-        deadline = time.monotonic() + 600
-        while inside.is_set() and time.monotonic() < deadline:
-            try:
-                if json.loads(_read(folder / "progress.json"))["chunks_done"] >= 1:
-                    _thread.interrupt_main()  # as Ctrl-C: KeyboardInterrupt in the driver's loop
-                    return
-            except (OSError, ValueError, KeyError):
-                pass
-            time.sleep(0.01)
+        found = _pause_the_worker_after_its_first_checkpoint(folder, stop)
+        if found:
+            paused.append(found)
+            _thread.interrupt_main()  # as Ctrl-C: KeyboardInterrupt in the driver's loop
 
-    inside.set()
+    def log(line):
+        lines.append(line)
+        if line.startswith("interrupted") and paused:  # the driver has cancelled the task: let the worker see it
+            os.kill(paused[0][0], signal.SIGCONT)
+
     interrupter = threading.Thread(target=ctrl_c_after_the_first_checkpoint, daemon=True)
     interrupter.start()
     try:
         with pytest.raises(KeyboardInterrupt):
-            run_sweep_ray([LONG], str(tmp_path), progress=False, log=lines.append, checkpoint_seconds=0.0)
+            run_sweep_ray([LONG], str(tmp_path), progress=False, log=log, checkpoint_seconds=0.0)
     finally:
-        inside.clear()
+        stop.set()
         interrupter.join()
     assert lines[-1] == ("interrupted: 1 unfinished cell(s) keep their newest checkpoints; the same command resumes "
                          "them")
